@@ -1,0 +1,2 @@
+//! The MILLION agent.
+pub use million_env as env;
