@@ -1,0 +1,64 @@
+"""Entry points of the MILLION env ids (see `registry.py`)."""
+
+from __future__ import annotations
+
+from million_env.million.instructions import metaworld_instructions, point_goal_instructions
+from million_env.million.metaworld_source import MetaWorldSource
+from million_env.million.point_goal import PointGoalSource
+from million_env.million.protocol import MillionEnv
+
+
+def make_metaworld_million(
+    benchmark: str,
+    split: str,
+    task: str | None = None,
+    *,
+    instruction_set: str = "train",
+    instructions: bool = True,
+    time_obs: str = "trial",
+    action_repeat: int = 2,
+    trials: int = 3,
+    trial_len: int = 200,
+) -> MillionEnv:
+    """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
+    sentences = metaworld_instructions(instruction_set)
+    source = MetaWorldSource(benchmark, split, task=task)
+    try:
+        return MillionEnv(
+            source,
+            sentences,
+            instructions=instructions,
+            time_obs=time_obs,
+            action_repeat=action_repeat,
+            trials=trials,
+            trial_len=trial_len,
+        )
+    except Exception:
+        source.close()
+        raise
+
+
+def make_point_goal_million(
+    *,
+    num_goals: int = 4,
+    instruction_set: str = "train",
+    instructions: bool = True,
+    time_obs: str = "trial",
+    action_repeat: int = 1,
+    trials: int = 3,
+    trial_len: int = 25,
+) -> MillionEnv:
+    """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
+    if isinstance(num_goals, bool) or not isinstance(num_goals, int):
+        raise ValueError(f"num_goals must be an integer, got {num_goals!r}")
+    sentences = point_goal_instructions(instruction_set, num_goals)
+    source = PointGoalSource(tuple(sentences))
+    return MillionEnv(
+        source,
+        sentences,
+        instructions=instructions,
+        time_obs=time_obs,
+        action_repeat=action_repeat,
+        trials=trials,
+        trial_len=trial_len,
+    )

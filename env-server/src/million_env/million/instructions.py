@@ -1,0 +1,153 @@
+"""Instruction sentences (from the package's data files) and their GloVe encoding."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from importlib import resources
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from million_env.million.glove import EMBED_DIM, GOAL_TOKEN, glove
+from million_env.million.stats import COUNTERS
+
+INSTRUCTION_SETS: tuple[str, ...] = ("train", "heldout")
+METAWORLD_FILE = "metaworld_instructions.json"
+POINT_GOAL_FILE = "point_goal_instructions.json"
+
+
+def read_data_file(name: str) -> dict[str, Any]:
+    """A JSON file shipped in ``million_env/data``."""
+    text = resources.files("million_env.data").joinpath(name).read_text(encoding="utf-8")
+    data = json.loads(text)
+    if not isinstance(data, dict):
+        raise ValueError(f"instruction file {name} must hold a JSON object")
+    return data
+
+
+def tokenize(sentence: str) -> tuple[str, ...]:
+    """Lower-cased whitespace tokens; ``goal_pos`` is kept as the goal placeholder."""
+    tokens = tuple(word.lower() for word in sentence.split())
+    if not tokens:
+        raise ValueError("an instruction sentence must have at least one word")
+    return tokens
+
+
+def _check_instruction_set(instruction_set: str) -> None:
+    if instruction_set not in INSTRUCTION_SETS:
+        raise ValueError(
+            f"unknown instruction_set {instruction_set!r}; expected one of {INSTRUCTION_SETS}"
+        )
+
+
+def _sentence_list(where: str, value: Any) -> tuple[str, ...]:
+    if not isinstance(value, list) or not value or not all(isinstance(s, str) for s in value):
+        raise ValueError(f"{where} must be a non-empty list of sentences")
+    for sentence in value:
+        tokenize(sentence)
+    return tuple(value)
+
+
+def metaworld_instructions(instruction_set: str) -> dict[str, tuple[str, ...]]:
+    """{task name: sentences} of the chosen set for all 50 Meta-World v3 tasks."""
+    _check_instruction_set(instruction_set)
+    tasks = read_data_file(METAWORLD_FILE).get("tasks")
+    if not isinstance(tasks, dict):
+        raise ValueError(f"{METAWORLD_FILE} has no 'tasks' object")
+    return {
+        name: _sentence_list(f"{METAWORLD_FILE} tasks.{name}.{instruction_set}", sets.get(instruction_set))
+        for name, sets in tasks.items()
+    }
+
+
+def point_goal_instructions(instruction_set: str, num_goals: int) -> dict[str, tuple[str, ...]]:
+    """{goal name: sentences} for PointGoal with `num_goals` goals, in goal order."""
+    _check_instruction_set(instruction_set)
+    data = read_data_file(POINT_GOAL_FILE)
+    names_by_count = data.get("goal_names", {})
+    names = names_by_count.get(str(num_goals))
+    if names is None:
+        counts = sorted(int(k) for k in names_by_count)
+        raise ValueError(f"num_goals must be one of {counts}, got {num_goals!r}")
+    templates = _sentence_list(f"{POINT_GOAL_FILE} {instruction_set}", data.get(instruction_set))
+    for template in templates:
+        if "{goal}" not in template:
+            raise ValueError(f"PointGoal template {template!r} does not name the goal")
+    return {name: tuple(t.replace("{goal}", name) for t in templates) for name in names}
+
+
+@dataclass(frozen=True)
+class EncodedInstruction:
+    """One sentence as the word vectors fed during an instruction phase."""
+
+    text: str
+    tokens: tuple[str, ...]
+    vectors: npt.NDArray[np.float32]  # (len(tokens), 50); read-only
+
+
+class InstructionEncoder:
+    """Turns sentences into GloVe rows, caching the goal-free part per sentence.
+
+    The cache matters for speed only: a sentence's words never change, only the
+    goal that `goal_pos` stands for.
+    """
+
+    def __init__(self) -> None:
+        self._glove = glove()
+        self._lock = threading.Lock()
+        self._cache: dict[str, tuple[tuple[str, ...], npt.NDArray[np.float32], list[str]]] = {}
+
+    def _lookup(self, sentence: str) -> tuple[tuple[str, ...], npt.NDArray[np.float32], list[str]]:
+        with self._lock:
+            cached = self._cache.get(sentence)
+        if cached is not None:
+            return cached
+        tokens = tokenize(sentence)
+        vectors = np.zeros((len(tokens), EMBED_DIM), dtype=np.float32)
+        unknown: list[str] = []
+        for i, token in enumerate(tokens):
+            if token == GOAL_TOKEN:
+                continue
+            vector = self._glove.vector(token)
+            if vector is None:
+                unknown.append(token)
+            else:
+                vectors[i] = vector
+        entry = (tokens, vectors, unknown)
+        with self._lock:
+            self._cache[sentence] = entry
+        return entry
+
+    def encode(self, sentence: str, goal: npt.NDArray[np.floating]) -> EncodedInstruction:
+        """The sentence's vectors with ``goal_pos`` as [goal_x, goal_y, goal_z, 0 x 47].
+
+        Every call counts its tokens (and unknown words) in the process counters,
+        since each call is one instruction fed to an agent.
+        """
+        tokens, base, unknown = self._lookup(sentence)
+        vectors = base.copy()
+        goal_rows = [i for i, token in enumerate(tokens) if token == GOAL_TOKEN]
+        if goal_rows:
+            goal = np.asarray(goal, dtype=np.float64).reshape(-1)
+            if goal.shape != (3,):
+                raise ValueError(f"goal_pos needs a 3-d goal, got shape {goal.shape}")
+            vectors[goal_rows, :3] = goal.astype(np.float32)
+        vectors.flags.writeable = False
+        COUNTERS.count_tokens(len(tokens), unknown)
+        return EncodedInstruction(text=sentence, tokens=tokens, vectors=vectors)
+
+
+def unknown_words(sentences: Mapping[str, Sequence[str]]) -> list[str]:
+    """Every token of the given sentences that GloVe lacks (``goal_pos`` excepted)."""
+    table = glove()
+    return [
+        token
+        for group in sentences.values()
+        for sentence in group
+        for token in tokenize(sentence)
+        if token != GOAL_TOKEN and token not in table
+    ]

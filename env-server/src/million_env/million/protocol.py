@@ -1,0 +1,321 @@
+"""The MILLION episode protocol as one Gymnasium env over a task source.
+
+An episode: sample a task and one of its sentences; an instruction phase feeds the
+sentence one word per step (action ignored, reward 0); then a trial runs the MDP
+with action repeat until success or `trial_len` env steps. A failed trial is
+followed by a new instruction phase with another sentence of the same task; a
+successful one directly by the next trial. After `trials` trials the episode is
+`terminated`; trial boundaries are not terminal. The MDP is reset between trials
+with the same task and goal.
+
+Observation timing: the step that ends a trial (not the last) already returns the
+first observation of what follows (a word, or the next trial's reset state), so
+every agent step is a real decision or a real word. The last trial's final step
+returns the trial's final state with `terminated`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any, NamedTuple
+
+import gymnasium
+import numpy as np
+import numpy.typing as npt
+
+from million_env.million.glove import EMBED_DIM
+from million_env.million.instructions import EncodedInstruction, InstructionEncoder
+from million_env.million.task_source import STATE_DIM, SampledTask, TaskSource
+
+TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
+PHASE_INSTRUCTION = "instruction"
+PHASE_TRIAL = "trial"
+
+
+class InfoField(NamedTuple):
+    """A declared info field: name, numpy dtype, shape of one env's value, meaning."""
+
+    name: str
+    dtype: np.dtype[Any]
+    shape: tuple[int, ...]
+    description: str
+
+
+_STR = np.dtype(np.str_)
+
+INFO_FIELDS: tuple[InfoField, ...] = (
+    InfoField("success", np.dtype(np.bool_), (), "true at the step that ended a trial by success"),
+    InfoField("trial_end", np.dtype(np.bool_), (), "true at the step that ended a trial"),
+    InfoField(
+        "trial",
+        np.dtype(np.int64),
+        (),
+        "index of the trial the observation belongs to or whose instruction it shows (0-based)",
+    ),
+    InfoField(
+        "trial_successes", np.dtype(np.int64), (), "successful trials so far in this episode"
+    ),
+    InfoField("phase", _STR, (), "phase of the observation: 'instruction' or 'trial'"),
+    InfoField("task_name", _STR, (), "the episode's task, e.g. 'reach-v3' (PointGoal: goal name)"),
+    InfoField("task_id", np.dtype(np.int64), (), "the task id also given in the observation"),
+    InfoField(
+        "instruction", _STR, (), "the current instruction sentence ('' without instructions)"
+    ),
+    InfoField("token", _STR, (), "the word in the observation ('' in trials)"),
+    InfoField("steps_in_trial", np.dtype(np.int64), (), "env steps taken in the current trial"),
+    InfoField("episode_step", np.dtype(np.int64), (), "agent steps taken in this episode"),
+    InfoField(
+        "goal",
+        np.dtype(np.float64),
+        (3,),
+        "the task's real goal position (what goal_pos encodes); for evaluation, not the policy",
+    ),
+)
+
+
+def observation_space(num_task_ids: int) -> gymnasium.spaces.Dict:
+    """The protocol's observation layout, in this key order for every source."""
+    inf = np.inf
+    return gymnasium.spaces.Dict(
+        [
+            ("state", gymnasium.spaces.Box(-inf, inf, shape=(STATE_DIM,), dtype=np.float64)),
+            ("word", gymnasium.spaces.Box(-inf, inf, shape=(EMBED_DIM,), dtype=np.float32)),
+            ("time", gymnasium.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)),
+            ("phase", gymnasium.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)),
+            ("task_id", gymnasium.spaces.Discrete(num_task_ids)),
+            ("prev_reward", gymnasium.spaces.Box(-inf, inf, shape=(1,), dtype=np.float32)),
+        ]
+    )
+
+
+class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
+    """MILLION episodes over any `TaskSource` (Meta-World benchmarks, PointGoal).
+
+    Info fields are declared in `info_fields` and `metadata["info_fields"]` as
+    (name, numpy dtype, shape, description); every reset and step sets all of them.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": [], "info_fields": INFO_FIELDS}  # noqa: RUF012
+    info_fields: tuple[InfoField, ...] = INFO_FIELDS
+
+    def __init__(
+        self,
+        source: TaskSource,
+        sentences: Mapping[str, Sequence[str]],
+        *,
+        instructions: bool = True,
+        time_obs: str = "trial",
+        action_repeat: int = 2,
+        trials: int = 3,
+        trial_len: int = 200,
+    ) -> None:
+        if time_obs not in TIME_OBS_MODES:
+            raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
+        for name, value in (
+            ("action_repeat", action_repeat),
+            ("trials", trials),
+            ("trial_len", trial_len),
+        ):
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not isinstance(instructions, bool):
+            raise ValueError(f"instructions must be a bool, got {instructions!r}")
+        if trial_len > source.max_steps_per_reset:
+            raise ValueError(
+                f"trial_len {trial_len} exceeds the {source.max_steps_per_reset} env steps "
+                "the environment allows after a reset"
+            )
+        missing = [name for name in source.task_names if not sentences.get(name)]
+        if missing:
+            raise ValueError(f"no instruction sentences for tasks {missing}")
+
+        self._source = source
+        self._sentences = {name: tuple(sentences[name]) for name in source.task_names}
+        self._encoder = InstructionEncoder()
+        self._instructions = instructions
+        self._episode_time = time_obs == "episode"
+        self._action_repeat = action_repeat
+        self._trials = trials
+        self._trial_len = trial_len
+        self.observation_space = observation_space(source.num_task_ids)
+        self.action_space = source.action_space
+
+        longest = max(len(s.split()) for group in self._sentences.values() for s in group)
+        agent_steps_per_trial = math.ceil(trial_len / action_repeat)
+        words = longest if instructions else 0
+        #: Upper bound on agent steps per episode; the denominator of episode time.
+        self.max_episode_steps = trials * (words + agent_steps_per_trial)
+
+        self._task: SampledTask | None = None
+        self._state = np.zeros(STATE_DIM, dtype=np.float64)
+        self._instruction: EncodedInstruction | None = None
+        self._word_index = 0
+        self._phase = PHASE_TRIAL
+        self._trial = 0
+        self._trial_successes = 0
+        self._steps_in_trial = 0
+        self._episode_step = 0
+        self._prev_reward = 0.0
+        self._done = False
+
+    # ------------------------------------------------------------------ gymnasium
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, Any], dict[str, Any]]:
+        super().reset(seed=seed)
+        if seed is not None:
+            self._source.seed(seed)
+        self._task = self._source.sample()
+        self._instruction = None
+        self._trial = 0
+        self._trial_successes = 0
+        self._episode_step = 0
+        self._prev_reward = 0.0
+        self._done = False
+        # The MDP is reset before the first instruction so goal_pos is the real goal.
+        self._begin_trial_mdp()
+        self._begin_instruction_or_trial()
+        return self._observation(), self._info(success=False, trial_end=False)
+
+    def step(
+        self, action: npt.NDArray[np.float32]
+    ) -> tuple[dict[str, Any], float, bool, bool, dict[str, Any]]:
+        if self._task is None or self._done:
+            raise RuntimeError("step() needs reset() first (at start and after termination)")
+        self._episode_step += 1
+        success = trial_end = terminated = False
+        reward = 0.0
+        if self._phase == PHASE_INSTRUCTION:
+            # The action is ignored and the reward is 0 while words are fed.
+            self._word_index += 1
+            assert self._instruction is not None
+            if self._word_index >= len(self._instruction.tokens):
+                self._phase = PHASE_TRIAL
+        else:
+            reward, success = self._act(self._checked_action(action))
+            if success or self._steps_in_trial >= self._trial_len:
+                trial_end = True
+                self._trial += 1
+                self._trial_successes += int(success)
+                if self._trial >= self._trials:
+                    terminated = self._done = True
+                    # The final observation stays in the last trial.
+                    self._trial = self._trials - 1
+                else:
+                    self._begin_trial_mdp()
+                    if not success:
+                        self._begin_instruction_or_trial()
+        self._prev_reward = reward
+        return (
+            self._observation(),
+            reward,
+            terminated,
+            False,
+            self._info(success=success, trial_end=trial_end),
+        )
+
+    def close(self) -> None:
+        self._source.close()
+        super().close()
+
+    # ------------------------------------------------------------------ phases
+
+    def _begin_trial_mdp(self) -> None:
+        assert self._task is not None
+        self._state = self._task.reset()
+        self._steps_in_trial = 0
+        self._phase = PHASE_TRIAL
+
+    def _begin_instruction_or_trial(self) -> None:
+        if not self._instructions:
+            self._phase = PHASE_TRIAL
+            return
+        assert self._task is not None
+        self._instruction = self._encoder.encode(self._next_sentence(), self._task.goal())
+        self._word_index = 0
+        self._phase = PHASE_INSTRUCTION
+
+    def _next_sentence(self) -> str:
+        assert self._task is not None
+        choices = self._sentences[self._task.name]
+        if self._instruction is not None and len(choices) > 1:
+            # A re-instruction tries another wording, as a human teacher would.
+            choices = tuple(s for s in choices if s != self._instruction.text) or choices
+        return choices[int(self.np_random.integers(len(choices)))]
+
+    def _act(self, action: npt.NDArray[np.float32]) -> tuple[float, bool]:
+        assert self._task is not None
+        reward = 0.0
+        repeats = min(self._action_repeat, self._trial_len - self._steps_in_trial)
+        for _ in range(repeats):
+            self._state, step_reward, success = self._task.step(action)
+            self._steps_in_trial += 1
+            reward += step_reward
+            if success:
+                # The trial ends at the env step that succeeds.
+                return reward, True
+        return reward, False
+
+    def _checked_action(self, action: Any) -> npt.NDArray[np.float32]:
+        checked = np.asarray(action, dtype=self.action_space.dtype)
+        if checked.shape != self.action_space.shape:
+            raise ValueError(
+                f"action must have shape {self.action_space.shape}, got {checked.shape}"
+            )
+        if not np.all(np.isfinite(checked)):
+            raise ValueError("action must be finite")
+        return checked
+
+    # ------------------------------------------------------------------ output
+
+    def _time(self) -> float:
+        if self._episode_time:
+            return min(1.0, self._episode_step / self.max_episode_steps)
+        if self._phase == PHASE_INSTRUCTION:
+            return 0.0
+        return self._steps_in_trial / self._trial_len
+
+    def _observation(self) -> dict[str, Any]:
+        assert self._task is not None
+        if self._phase == PHASE_INSTRUCTION:
+            assert self._instruction is not None
+            state = np.zeros(STATE_DIM, dtype=np.float64)
+            word = self._instruction.vectors[self._word_index].copy()
+            phase = 1.0
+        else:
+            state = np.array(self._state, dtype=np.float64)
+            word = np.zeros(EMBED_DIM, dtype=np.float32)
+            phase = 0.0
+        prev_reward = 0.0 if self._instructions else self._prev_reward
+        return {
+            "state": state,
+            "word": word,
+            "time": np.array([self._time()], dtype=np.float32),
+            "phase": np.array([phase], dtype=np.float32),
+            "task_id": np.int64(self._task.task_id),
+            "prev_reward": np.array([prev_reward], dtype=np.float32),
+        }
+
+    def _info(self, *, success: bool, trial_end: bool) -> dict[str, Any]:
+        assert self._task is not None
+        in_instruction = self._phase == PHASE_INSTRUCTION
+        token = ""
+        if in_instruction:
+            assert self._instruction is not None
+            token = self._instruction.tokens[self._word_index]
+        return {
+            "success": success,
+            "trial_end": trial_end,
+            "trial": self._trial,
+            "trial_successes": self._trial_successes,
+            "phase": self._phase,
+            "task_name": self._task.name,
+            "task_id": self._task.task_id,
+            "instruction": self._instruction.text if self._instruction is not None else "",
+            "token": token,
+            "steps_in_trial": self._steps_in_trial,
+            "episode_step": self._episode_step,
+            "goal": self._task.goal(),
+        }
