@@ -59,7 +59,9 @@ def metaworld_instructions(instruction_set: str) -> dict[str, tuple[str, ...]]:
     if not isinstance(tasks, dict):
         raise ValueError(f"{METAWORLD_FILE} has no 'tasks' object")
     return {
-        name: _sentence_list(f"{METAWORLD_FILE} tasks.{name}.{instruction_set}", sets.get(instruction_set))
+        name: _sentence_list(
+            f"{METAWORLD_FILE} tasks.{name}.{instruction_set}", sets.get(instruction_set)
+        )
         for name, sets in tasks.items()
     }
 

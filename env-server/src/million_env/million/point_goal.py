@@ -44,7 +44,9 @@ class PointGoalTask:
     ends the trial) is always worth more than hovering near the goal.
     """
 
-    def __init__(self, name: str, goal_xy: npt.NDArray[np.float64], rng: np.random.Generator) -> None:
+    def __init__(
+        self, name: str, goal_xy: npt.NDArray[np.float64], rng: np.random.Generator
+    ) -> None:
         self._name = name
         self._goal = np.array([goal_xy[0], goal_xy[1], 0.0], dtype=np.float64)
         self._rng = rng
