@@ -1,0 +1,49 @@
+"""``million-env-server``: the command line entry point."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+
+from million_env.service import ServerLimits
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    defaults = ServerLimits()
+    parser = argparse.ArgumentParser(
+        prog="million-env-server",
+        description="Serve Gymnasium and Meta-World environments over the MILLION env API (gRPC).",
+    )
+    parser.add_argument(
+        "--address",
+        default="127.0.0.1:50051",
+        help="host:port to listen on (loopback by default; port 0 picks a free one)",
+    )
+    parser.add_argument("--max-envs-per-handle", type=int, default=defaults.max_envs_per_handle)
+    parser.add_argument("--max-envs-total", type=int, default=defaults.max_envs_total)
+    parser.add_argument(
+        "--workers", type=int, default=None, help="threads stepping environments (default: auto)"
+    )
+    parser.add_argument(
+        "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
+    )
+    args = parser.parse_args(argv)
+    if args.max_envs_per_handle < 1 or args.max_envs_total < 1:
+        parser.error("--max-envs-per-handle and --max-envs-total must be at least 1")
+    return args
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    logging.basicConfig(
+        level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    from million_env.server import serve
+
+    limits = ServerLimits(args.max_envs_per_handle, args.max_envs_total)
+    asyncio.run(serve(args.address, limits, args.workers))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,34 @@
+"""The one exception type the service turns into a gRPC status."""
+
+from __future__ import annotations
+
+import grpc
+
+
+class ApiError(Exception):
+    """A request failed with a gRPC status code and a message for the client."""
+
+    def __init__(self, code: grpc.StatusCode, message: str) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
+
+
+def invalid(message: str) -> ApiError:
+    return ApiError(grpc.StatusCode.INVALID_ARGUMENT, message)
+
+
+def not_found(message: str) -> ApiError:
+    return ApiError(grpc.StatusCode.NOT_FOUND, message)
+
+
+def precondition(message: str) -> ApiError:
+    return ApiError(grpc.StatusCode.FAILED_PRECONDITION, message)
+
+
+def exhausted(message: str) -> ApiError:
+    return ApiError(grpc.StatusCode.RESOURCE_EXHAUSTED, message)
+
+
+def internal(message: str) -> ApiError:
+    return ApiError(grpc.StatusCode.INTERNAL, message)

@@ -1,0 +1,59 @@
+"""Building and running the gRPC server: EnvService, health and reflection."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import signal
+from concurrent.futures import ThreadPoolExecutor
+
+import grpc
+from grpc_health.v1 import health, health_pb2, health_pb2_grpc
+from grpc_reflection.v1alpha import reflection
+
+from million_env._proto import env_pb2, env_pb2_grpc
+from million_env.registry import env_descriptions
+from million_env.service import EnvService, ServerLimits
+
+_LOG = logging.getLogger(__name__)
+SERVICE_NAME = env_pb2.DESCRIPTOR.services_by_name["EnvService"].full_name
+MAX_MESSAGE_BYTES = 64 * 1024 * 1024
+
+
+async def serve(address: str, limits: ServerLimits, workers: int | None = None) -> None:
+    """Serves until SIGINT/SIGTERM; prints the bound port for scripts that pass :0."""
+    env_descriptions()  # registers every id before the first client asks
+    executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="env")
+    server = grpc.aio.server(
+        options=[
+            ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
+            ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),
+        ]
+    )
+    service = EnvService(limits, executor)
+    env_pb2_grpc.add_EnvServiceServicer_to_server(service, server)
+    health_servicer = health.aio.HealthServicer()
+    health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)
+    reflection.enable_server_reflection(
+        (SERVICE_NAME, health.SERVICE_NAME, reflection.SERVICE_NAME), server
+    )
+    port = server.add_insecure_port(address)
+    if port == 0:
+        raise OSError(f"cannot bind {address}")
+    await server.start()
+    for name in ("", SERVICE_NAME):
+        await health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
+    host = address.rsplit(":", 1)[0]
+    _LOG.info("million-env-server listening on %s:%d", host, port)
+    print(f"listening on {host}:{port}", flush=True)
+
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    await stop.wait()
+    _LOG.info("shutting down")
+    await health_servicer.enter_graceful_shutdown()
+    await server.stop(grace=2.0)
+    await service.close_all()
+    executor.shutdown(wait=True)

@@ -1,0 +1,224 @@
+"""The EnvService implementation on grpc.aio: handles, budgets and counters.
+
+Environment work (make, reset, step, close) runs in a thread pool so that a slow
+batch never blocks the event loop that serves other clients; the calls of one
+handle are serialised by that handle's lock.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import secrets
+from collections.abc import AsyncIterator, Awaitable, Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import grpc
+
+from million_env import __version__
+from million_env._proto import env_pb2, env_pb2_grpc
+from million_env.batch import AUTORESET_MODES, EnvBatch
+from million_env.errors import ApiError, exhausted, invalid, not_found, precondition
+from million_env.registry import env_descriptions
+from million_env.tensors import values_to_python
+
+_LOG = logging.getLogger(__name__)
+T = TypeVar("T")
+
+API_MAJOR = 1
+API_MINOR = 0
+
+
+@dataclass
+class ServerLimits:
+    max_envs_per_handle: int = 256
+    max_envs_total: int = 1024
+
+
+@dataclass
+class _Handle:
+    batch: EnvBatch
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+
+
+def _status_number(code: grpc.StatusCode) -> int:
+    return int(code.value[0])
+
+
+class EnvService(env_pb2_grpc.EnvServiceServicer):
+    def __init__(self, limits: ServerLimits, executor: ThreadPoolExecutor) -> None:
+        self._limits = limits
+        self._executor = executor
+        self._handles: dict[str, _Handle] = {}
+        self._envs_reserved = 0
+        self._steps_served = 0
+
+    # -- plumbing -------------------------------------------------------------
+
+    async def _in_thread(self, call: Callable[[], T]) -> T:
+        return await asyncio.get_running_loop().run_in_executor(self._executor, call)
+
+    async def _unary(self, context: grpc.aio.ServicerContext, work: Awaitable[T]) -> T:
+        try:
+            return await work
+        except ApiError as err:
+            await context.abort(err.code, err.message)
+            raise  # abort raises; this line only satisfies type checkers
+
+    def _handle(self, name: str) -> _Handle:
+        handle = self._handles.get(name)
+        if handle is None:
+            raise not_found(f"no env handle {name!r} (never made, or already closed)")
+        return handle
+
+    # -- operations shared by the unary calls and the stream -------------------
+
+    async def _make(self, request: env_pb2.MakeRequest) -> env_pb2.MakeResponse:
+        num_envs = request.num_envs
+        if num_envs < 1:
+            raise invalid("num_envs must be at least 1")
+        if num_envs > self._limits.max_envs_per_handle:
+            raise exhausted(
+                f"num_envs {num_envs} is above max_envs_per_handle "
+                f"{self._limits.max_envs_per_handle}"
+            )
+        if request.autoreset_mode not in (env_pb2.AUTORESET_MODE_UNSPECIFIED, *AUTORESET_MODES):
+            raise invalid(f"unknown autoreset mode {request.autoreset_mode}")
+        if self._envs_reserved + num_envs > self._limits.max_envs_total:
+            raise exhausted(
+                f"{num_envs} more environments would exceed the server's budget of "
+                f"{self._limits.max_envs_total} ({self._envs_reserved} alive)"
+            )
+        kwargs = values_to_python(request.kwargs)
+        self._envs_reserved += num_envs
+        try:
+            batch = await self._in_thread(
+                lambda: EnvBatch(request.env_id, kwargs, num_envs, request.autoreset_mode)
+            )
+        except BaseException:
+            self._envs_reserved -= num_envs
+            raise
+        name = secrets.token_urlsafe(24)
+        self._handles[name] = _Handle(batch)
+        _LOG.info("made %s x%d as %s…", request.env_id, num_envs, name[:6])
+        return env_pb2.MakeResponse(handle=name, spec=batch.spec)
+
+    async def _reset(self, request: env_pb2.ResetRequest) -> env_pb2.ResetResponse:
+        handle = self._handle(request.handle)
+        options = values_to_python(request.options)
+        async with handle.lock:
+            self._handle(request.handle)  # closed while this call waited for the lock
+            return await self._in_thread(
+                lambda: handle.batch.reset(list(request.env_indices), list(request.seeds), options)
+            )
+
+    async def _step(self, request: env_pb2.StepRequest) -> env_pb2.StepResponse:
+        handle = self._handle(request.handle)
+        async with handle.lock:
+            self._handle(request.handle)
+            response = await self._in_thread(lambda: handle.batch.step(request.action))
+        self._steps_served += handle.batch.num_envs
+        return response
+
+    async def _close(self, name: str) -> None:
+        handle = self._handles.pop(name, None)
+        if handle is None:
+            raise not_found(f"no env handle {name!r} (never made, or already closed)")
+        async with handle.lock:
+            await self._in_thread(handle.batch.close)
+        self._envs_reserved -= handle.batch.num_envs
+
+    async def close_all(self) -> None:
+        for name in list(self._handles):
+            await self._close(name)
+
+    # -- RPCs -----------------------------------------------------------------
+
+    async def Handshake(
+        self, request: env_pb2.HandshakeRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.HandshakeResponse:
+        async def work() -> env_pb2.HandshakeResponse:
+            if request.client_version.major != API_MAJOR:
+                raise precondition(
+                    f"client speaks API major version {request.client_version.major}; "
+                    f"this server speaks {API_MAJOR}"
+                )
+            _LOG.info("handshake from %r", request.client_name)
+            return env_pb2.HandshakeResponse(
+                server_version=env_pb2.ApiVersion(major=API_MAJOR, minor=API_MINOR),
+                server_name=f"million-env-server/{__version__}",
+                capabilities=env_pb2.Capabilities(
+                    max_envs_per_handle=self._limits.max_envs_per_handle,
+                    max_envs_total=self._limits.max_envs_total,
+                    autoreset_modes=list(AUTORESET_MODES),
+                    streaming=True,
+                ),
+            )
+
+        return await self._unary(context, work())
+
+    async def ListEnvs(
+        self, request: env_pb2.ListEnvsRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.ListEnvsResponse:
+        described = await self._in_thread(env_descriptions)
+        return env_pb2.ListEnvsResponse(
+            envs=[env_pb2.EnvIdInfo(env_id=k, description=v) for k, v in described.items()]
+        )
+
+    async def Make(
+        self, request: env_pb2.MakeRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.MakeResponse:
+        return await self._unary(context, self._make(request))
+
+    async def Reset(
+        self, request: env_pb2.ResetRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.ResetResponse:
+        return await self._unary(context, self._reset(request))
+
+    async def Step(
+        self, request: env_pb2.StepRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.StepResponse:
+        return await self._unary(context, self._step(request))
+
+    async def Session(
+        self,
+        request_iterator: AsyncIterator[env_pb2.SessionRequest],
+        context: grpc.aio.ServicerContext,
+    ) -> AsyncIterator[env_pb2.SessionResponse]:
+        async for request in request_iterator:
+            reply = env_pb2.SessionResponse(request_id=request.request_id)
+            kind = request.WhichOneof("request")
+            try:
+                if kind == "reset":
+                    reply.reset.CopyFrom(await self._reset(request.reset))
+                elif kind == "step":
+                    reply.step.CopyFrom(await self._step(request.step))
+                else:
+                    raise invalid("a SessionRequest must carry reset or step")
+            except ApiError as err:
+                reply.ClearField("response")
+                reply.error.CopyFrom(
+                    env_pb2.Error(code=_status_number(err.code), message=err.message)
+                )
+            yield reply
+
+    async def Close(
+        self, request: env_pb2.CloseRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.CloseResponse:
+        await self._unary(context, self._close(request.handle))
+        return env_pb2.CloseResponse()
+
+    async def GetStats(
+        self, request: env_pb2.GetStatsRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.GetStatsResponse:
+        from million_env.million import protocol_stats
+
+        counters: dict[str, Any] = {
+            "envs_alive": float(sum(h.batch.num_envs for h in self._handles.values())),
+            "handles_alive": float(len(self._handles)),
+            "steps_served": float(self._steps_served),
+        }
+        counters.update(protocol_stats())
+        return env_pb2.GetStatsResponse(counters=counters)
