@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import gymnasium
 import numpy as np
 import numpy.typing as npt
 
+from million_env.info_fields import InfoField
 from million_env.million.glove import EMBED_DIM
 from million_env.million.instructions import EncodedInstruction, InstructionEncoder
 from million_env.million.task_source import STATE_DIM, SampledTask, TaskSource
@@ -33,41 +34,28 @@ PHASE_INSTRUCTION = "instruction"
 PHASE_TRIAL = "trial"
 
 
-class InfoField(NamedTuple):
-    """A declared info field: name, numpy dtype, shape of one env's value, meaning."""
-
-    name: str
-    dtype: np.dtype[Any]
-    shape: tuple[int, ...]
-    description: str
-
-
-_STR = np.dtype(np.str_)
-
 INFO_FIELDS: tuple[InfoField, ...] = (
-    InfoField("success", np.dtype(np.bool_), (), "true at the step that ended a trial by success"),
-    InfoField("trial_end", np.dtype(np.bool_), (), "true at the step that ended a trial"),
+    InfoField("success", "bool", (), "true at the step that ended a trial by success"),
+    InfoField("trial_end", "bool", (), "true at the step that ended a trial"),
     InfoField(
         "trial",
-        np.dtype(np.int64),
+        "int64",
         (),
         "index of the trial the observation belongs to or whose instruction it shows (0-based)",
     ),
+    InfoField("trial_successes", "int64", (), "successful trials so far in this episode"),
+    InfoField("phase", "str", (), "phase of the observation: 'instruction' or 'trial'"),
+    InfoField("task_name", "str", (), "the episode's task, e.g. 'reach-v3' (PointGoal: goal name)"),
+    InfoField("task_id", "int64", (), "the task id also given in the observation"),
     InfoField(
-        "trial_successes", np.dtype(np.int64), (), "successful trials so far in this episode"
+        "instruction", "str", (), "the current instruction sentence ('' without instructions)"
     ),
-    InfoField("phase", _STR, (), "phase of the observation: 'instruction' or 'trial'"),
-    InfoField("task_name", _STR, (), "the episode's task, e.g. 'reach-v3' (PointGoal: goal name)"),
-    InfoField("task_id", np.dtype(np.int64), (), "the task id also given in the observation"),
-    InfoField(
-        "instruction", _STR, (), "the current instruction sentence ('' without instructions)"
-    ),
-    InfoField("token", _STR, (), "the word in the observation ('' in trials)"),
-    InfoField("steps_in_trial", np.dtype(np.int64), (), "env steps taken in the current trial"),
-    InfoField("episode_step", np.dtype(np.int64), (), "agent steps taken in this episode"),
+    InfoField("token", "str", (), "the word in the observation ('' in trials)"),
+    InfoField("steps_in_trial", "int64", (), "env steps taken in the current trial"),
+    InfoField("episode_step", "int64", (), "agent steps taken in this episode"),
     InfoField(
         "goal",
-        np.dtype(np.float64),
+        "float64",
         (3,),
         "the task's real goal position (what goal_pos encodes); for evaluation, not the policy",
     ),
@@ -92,8 +80,9 @@ def observation_space(num_task_ids: int) -> gymnasium.spaces.Dict:
 class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
     """MILLION episodes over any `TaskSource` (Meta-World benchmarks, PointGoal).
 
-    Info fields are declared in `info_fields` and `metadata["info_fields"]` as
-    (name, numpy dtype, shape, description); every reset and step sets all of them.
+    Info fields are declared in `metadata["info_fields"]` (and `info_fields`) as the
+    server's `InfoField` (name, dtype name or "str", shape, description); every reset
+    and step sets all of them.
     """
 
     metadata: dict[str, Any] = {"render_modes": [], "info_fields": INFO_FIELDS}  # noqa: RUF012
@@ -219,6 +208,13 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
     def close(self) -> None:
         self._source.close()
         super().close()
+
+    @property
+    def current_task(self) -> SampledTask:
+        """The task of the current episode (evaluation and tests read its goal)."""
+        if self._task is None:
+            raise RuntimeError("no task before the first reset()")
+        return self._task
 
     # ------------------------------------------------------------------ phases
 
