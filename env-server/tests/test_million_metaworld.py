@@ -1,0 +1,190 @@
+"""The MILLION protocol over real Meta-World v3: goal_pos, action repeat against an
+in-process Meta-World env, scripted successes, seeding and the registered ids."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium
+import numpy as np
+import pytest
+from metaworld.policies import SawyerReachV3Policy
+
+from million_env.metaworld_tasks import ALL_TASK_NAMES, MetaWorldTaskSampler
+from million_env.million import register_envs
+from million_env.million.glove import glove
+from million_env.million.metaworld_source import MetaWorldTask
+from million_env.million.protocol import MillionEnv
+
+ZERO = np.zeros(4, dtype=np.float32)
+
+
+def make(env_id: str = "million/ML1-train", **kwargs: Any) -> MillionEnv:
+    register_envs()
+    return gymnasium.make(env_id, **kwargs).unwrapped  # type: ignore[return-value]
+
+
+def real_goal(env: MillionEnv) -> np.ndarray:
+    task = env.current_task
+    assert isinstance(task, MetaWorldTask)
+    return np.array(task.env._target_pos)
+
+
+def skip_instruction(env: MillionEnv, obs: dict[str, Any], info: dict[str, Any]) -> tuple:
+    words = []
+    while info["phase"] == "instruction":
+        words.append((info["token"], obs["word"].copy()))
+        obs, reward, _t, _tr, info = env.step(ZERO)
+        assert reward == 0.0
+    return obs, info, words
+
+
+@pytest.fixture(scope="module")
+def reach_env() -> MillionEnv:
+    return make("million/ML1-train")
+
+
+def test_registered_ids() -> None:
+    described = register_envs()
+    expected = {f"million/{b}-{s}" for b in ("ML1", "ML10", "ML45") for s in ("train", "test")}
+    assert set(described) == expected | {"million/PointGoal"}
+    for env_id, description in described.items():
+        assert env_id in gymnasium.registry
+        assert "kwargs" in description
+    assert gymnasium.registry["million/ML1-train"].kwargs["task"] == "reach-v3"
+
+
+def test_goal_pos_is_the_real_goal_and_words_are_glove_rows(reach_env: MillionEnv) -> None:
+    table = glove()
+    goals = set()
+    for seed in range(4):
+        obs, info = reach_env.reset(seed=seed)
+        goal = real_goal(reach_env)
+        goals.add(goal.tobytes())
+        np.testing.assert_array_equal(info["goal"], goal)
+        _obs, _info, words = skip_instruction(reach_env, obs, info)
+        assert [t for t, _ in words] == info["instruction"].split()
+        assert "goal_pos" in info["instruction"].split()
+        for token, vector in words:
+            if token == "goal_pos":
+                np.testing.assert_array_equal(vector[:3], goal.astype(np.float32))
+                assert not vector[3:].any()
+            else:
+                np.testing.assert_array_equal(vector, table.matrix[table.row(token)])
+    assert len(goals) > 1, "different seeds sample different goals"
+
+
+def test_goal_is_kept_across_trials(reach_env: MillionEnv) -> None:
+    reach_env.reset(seed=5)
+    goal = real_goal(reach_env)
+    trial_goals = []
+    done = False
+    while not done:
+        _obs, _r, done, _tr, info = reach_env.step(ZERO)
+        if info["trial_end"]:
+            trial_goals.append(real_goal(reach_env))
+    for g in trial_goals:
+        np.testing.assert_array_equal(g, goal)
+    assert len(trial_goals) == 3
+
+
+def test_trial_equals_in_process_metaworld_with_action_repeat(reach_env: MillionEnv) -> None:
+    """Two Meta-World env steps per agent step, rewards summed, bit for bit."""
+    seed = 7
+    obs, info = reach_env.reset(seed=seed)
+    obs, info, _ = skip_instruction(reach_env, obs, info)
+
+    sampled = MetaWorldTaskSampler("ML1", "train", task="reach-v3", seed=seed).sample()
+    raw_obs, _ = sampled.env.reset()
+    assert sampled.name == info["task_name"]
+    np.testing.assert_array_equal(obs["state"], raw_obs)
+
+    rng = np.random.default_rng(0)
+    for step in range(1, 100):
+        action = rng.uniform(-1, 1, size=4).astype(np.float32)
+        obs, reward, terminated, truncated, info = reach_env.step(action)
+        raw_reward = 0.0
+        for _ in range(2):
+            raw_obs, r, _t, raw_truncated, raw_info = sampled.env.step(action)
+            raw_reward += r
+            assert not raw_truncated
+        if info["trial_end"]:
+            break
+        assert info["steps_in_trial"] == 2 * step
+        assert obs["time"][0] == np.float32(2 * step / 200)
+        np.testing.assert_array_equal(obs["state"], raw_obs)
+        assert reward == raw_reward
+        assert not (terminated or truncated)
+    assert not raw_info["success"] or info["trial_end"]
+
+
+def test_scripted_reach_succeeds_and_starts_the_next_trial_directly(reach_env: MillionEnv) -> None:
+    """Meta-World's own reach policy, given the goal read from the goal_pos word."""
+    policy = SawyerReachV3Policy()
+    obs, info = reach_env.reset(seed=8)
+    _o, _i, words = skip_instruction(reach_env, obs, info)
+    goal = next(v[:3] for t, v in words if t == "goal_pos").astype(np.float64)
+    obs, info = _o, _i
+    ends = []
+    done = False
+    while not done:
+        state = obs["state"].copy()
+        state[36:39] = goal
+        obs, _r, done, truncated, info = reach_env.step(policy.get_action(state))
+        assert not truncated
+        if info["trial_end"]:
+            ends.append((info["success"], info["phase"], info["steps_in_trial"]))
+    assert [e[0] for e in ends] == [True, True, True]
+    # After a success the next trial starts at once, from a reset MDP.
+    assert ends[0][1:] == ("trial", 0) and ends[1][1:] == ("trial", 0)
+    assert info["trial_successes"] == 3
+
+
+def test_seed_determines_task_goal_and_sentences() -> None:
+    env_a, env_b = make("million/ML10-train"), make("million/ML10-train")
+
+    def stream(env: MillionEnv) -> list[tuple]:
+        out = []
+        for episode in range(4):
+            obs, info = env.reset(seed=21 if episode == 0 else None)
+            out.append((info["task_name"], info["instruction"], info["goal"].tobytes()))
+            out.append(obs["word"].tobytes())
+        return out
+
+    a = stream(env_a)
+    assert a == stream(env_b)
+    assert len({entry[0] for entry in a[::2]}) > 1, "ML10 samples several task classes"
+
+
+def test_ml10_task_ids_index_all_task_names() -> None:
+    env = make("million/ML10-test")
+    assert env.observation_space["task_id"].n == 50
+    names = set()
+    for seed in range(12):
+        obs, info = env.reset(seed=seed)
+        assert ALL_TASK_NAMES[int(obs["task_id"])] == info["task_name"]
+        names.add(info["task_name"])
+    assert names <= {
+        "drawer-open-v3",
+        "door-close-v3",
+        "shelf-place-v3",
+        "sweep-into-v3",
+        "lever-pull-v3",
+    }
+
+
+def test_trial_longer_than_metaworld_allows_is_rejected() -> None:
+    with pytest.raises(ValueError, match="trial_len"):
+        make("million/ML1-train", trial_len=501)
+
+
+def test_full_trial_never_reaches_metaworld_truncation() -> None:
+    env = make("million/ML1-test", trial_len=500, trials=2, instructions=False)
+    env.reset(seed=0)
+    done = False
+    steps = 0
+    while not done:
+        _obs, _r, done, truncated, _info = env.step(ZERO)
+        assert not truncated
+        steps += 1
+    assert steps == 500
