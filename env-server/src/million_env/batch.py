@@ -40,6 +40,25 @@ def _seed_metaworld(env: gym.Env, seed: int) -> None:
         env.unwrapped.seed(seed)
 
 
+def _fix_metaworld_observation_space(env: gym.Env) -> None:
+    # A raw Meta-World env declares its observation space at construction, before
+    # any task says whether the goal is observable; the goal-observable tasks of
+    # Meta-World/MT1 then send goals outside those (zero) bounds. Setting a task of
+    # the env's own task list first and re-reading the space makes them agree.
+    from metaworld.sawyer_xyz_env import SawyerXYZEnv
+
+    base = env.unwrapped
+    if not isinstance(base, SawyerXYZEnv) or env.observation_space is not base.observation_space:
+        return
+    layer: Any = env
+    while layer is not base and not hasattr(layer, "tasks"):
+        layer = layer.env
+    tasks = getattr(layer, "tasks", None)
+    if tasks:
+        base.set_task(tasks[0])
+        base.observation_space = base.sawyer_observation_space
+
+
 class EnvBatch:
     """N environments of one env id with one spec; not thread-safe on its own
     (the service serialises the calls of one handle)."""
@@ -58,6 +77,7 @@ class EnvBatch:
         try:
             for _ in range(num_envs):
                 self.envs.append(make_env(env_id, kwargs))
+                _fix_metaworld_observation_space(self.envs[-1])
             first = self.envs[0]
             self.observation_space = first.observation_space
             self.action_space = first.action_space

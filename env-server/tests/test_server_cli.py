@@ -1,0 +1,50 @@
+"""The console script: defaults, limits, and a served Make/Step through it."""
+
+from __future__ import annotations
+
+import grpc
+import numpy as np
+import pytest
+from conftest import start_server, stop_server
+
+from million_env._proto import env_pb2, env_pb2_grpc
+from million_env.cli import parse_args
+from million_env.tensors import encode_tensor
+
+
+def test_defaults_listen_on_loopback() -> None:
+    args = parse_args([])
+    assert args.address == "127.0.0.1:50051"
+    assert args.max_envs_per_handle >= 1 and args.max_envs_total >= args.max_envs_per_handle
+
+
+def test_bad_limits_rejected() -> None:
+    with pytest.raises(SystemExit):
+        parse_args(["--max-envs-total", "0"])
+
+
+def test_limits_are_enforced_by_the_running_server() -> None:
+    process, address = start_server("--max-envs-per-handle", "2", "--max-envs-total", "3")
+    try:
+        with grpc.insecure_channel(address) as channel:
+            stub = env_pb2_grpc.EnvServiceStub(channel)
+            caps = stub.Handshake(
+                env_pb2.HandshakeRequest(client_version=env_pb2.ApiVersion(major=1))
+            ).capabilities
+            assert (caps.max_envs_per_handle, caps.max_envs_total) == (2, 3)
+            first = stub.Make(env_pb2.MakeRequest(env_id="CartPole-v1", num_envs=2))
+            with pytest.raises(grpc.RpcError) as caught:
+                stub.Make(env_pb2.MakeRequest(env_id="CartPole-v1", num_envs=2))
+            assert caught.value.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
+            stub.Close(env_pb2.CloseRequest(handle=first.handle))
+            again = stub.Make(env_pb2.MakeRequest(env_id="CartPole-v1", num_envs=2))
+            stub.Reset(env_pb2.ResetRequest(handle=again.handle, seeds=[0, 1]))
+            reply = stub.Step(
+                env_pb2.StepRequest(handle=again.handle, action=encode_tensor(np.array([0, 1])))
+            )
+            assert len(reply.reward) == 2
+            stats = stub.GetStats(env_pb2.GetStatsRequest()).counters
+            assert stats["envs_alive"] == 2 and stats["steps_served"] == 2
+            assert "unknown_words" in stats  # the MILLION protocol's counters are merged in
+    finally:
+        stop_server(process)
