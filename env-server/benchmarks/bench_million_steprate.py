@@ -1,0 +1,118 @@
+"""Step rate of million/ML10-train next to raw Meta-World on the same tasks.
+
+The MILLION run records, per trial, which task ran and for how many Meta-World
+env steps; the raw run replays exactly that schedule on a `MetaWorldTaskSampler`
+with the same seed (same task classes and goals, a reset per trial, random
+actions). Both therefore simulate the same number of env steps of the same
+tasks, and the ratio of their times is the protocol's cost (instruction steps,
+observation and info building included). Times are this process's CPU time, so
+other processes on a shared machine do not count; runs alternate and the fastest
+of each side is kept.
+
+    .venv/bin/python env-server/benchmarks/bench_million_steprate.py --episodes 20 --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import gymnasium
+import numpy as np
+
+from million_env.metaworld_tasks import MetaWorldTaskSampler
+from million_env.million import protocol_stats, register_envs
+
+ML10_TRAIN = MetaWorldTaskSampler("ML10", "train").task_names
+Schedule = list[list[tuple[str, int]]]  # per episode: (task, env steps) per trial
+
+
+def run_million(seed: int, episodes: int, actions: np.ndarray) -> tuple[float, int, int, Schedule]:
+    env = gymnasium.make("million/ML10-train", disable_env_checker=True)
+    # Meta-World envs are built on a class's first sample; build all before timing.
+    seen: set[str] = set()
+    while len(seen) < len(ML10_TRAIN):
+        seen.add(env.reset()[1]["task_name"])
+    schedule: Schedule = []
+    agent_steps = env_steps = 0
+    start = time.process_time()
+    for episode in range(episodes):
+        _obs, info = env.reset(seed=seed if episode == 0 else None)
+        trials: list[tuple[str, int]] = []
+        steps_before = 0
+        done = False
+        while not done:
+            action = actions[agent_steps % len(actions)]
+            _obs, _r, done, _trunc, info = env.step(action)
+            agent_steps += 1
+            if info["trial_end"]:
+                # steps_in_trial is already the next trial's after a non-final end.
+                ended = info["steps_in_trial"] if done else steps_before
+                trials.append((info["task_name"], ended))
+                env_steps += ended
+            steps_before = info["steps_in_trial"]
+        schedule.append(trials)
+    elapsed = time.process_time() - start
+    env.close()
+    return elapsed, agent_steps, env_steps, schedule
+
+
+def run_raw(seed: int, schedule: Schedule, actions: np.ndarray) -> float:
+    sampler = MetaWorldTaskSampler("ML10", "train", seed=seed)
+    seen: set[str] = set()
+    while len(seen) < len(ML10_TRAIN):  # build every env outside the timing
+        seen.add(sampler.sample().name)
+    sampler.seed(seed)
+    step = 0
+    start = time.process_time()
+    for trials in schedule:
+        sampled = sampler.sample()
+        for name, env_steps in trials:
+            assert name == sampled.name, "raw replay diverged from the MILLION task sequence"
+            sampled.env.reset()
+            for _ in range(env_steps):
+                sampled.env.step(actions[step % len(actions)])
+                step += 1
+    elapsed = time.process_time() - start
+    sampler.close()
+    return elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    register_envs()
+    actions = np.random.default_rng(args.seed).uniform(-1, 1, size=(4096, 4)).astype(np.float32)
+    million_times, raw_times = [], []
+    for _ in range(args.repeats):
+        elapsed, agent_steps, env_steps, schedule = run_million(args.seed, args.episodes, actions)
+        million_times.append(elapsed)
+        raw_times.append(run_raw(args.seed, schedule, actions))
+    million, raw = min(million_times), min(raw_times)
+    print(
+        json.dumps(
+            {
+                "episodes": args.episodes,
+                "tasks": sorted({name for trials in schedule for name, _ in trials}),
+                "env_steps": env_steps,
+                "agent_steps": agent_steps,
+                "million_env_steps_per_s": round(env_steps / million, 1),
+                "million_agent_steps_per_s": round(agent_steps / million, 1),
+                "raw_metaworld_env_steps_per_s": round(env_steps / raw, 1),
+                "protocol_overhead": round(million / raw - 1.0, 4),
+                "million_times_s": [round(t, 3) for t in million_times],
+                "raw_times_s": [round(t, 3) for t in raw_times],
+                "unknown_words": protocol_stats()["unknown_words"],
+                "instruction_tokens": protocol_stats()["instruction_tokens"],
+            },
+            indent=2,
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
