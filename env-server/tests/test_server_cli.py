@@ -5,7 +5,7 @@ from __future__ import annotations
 import grpc
 import numpy as np
 import pytest
-from conftest import start_server, stop_server
+from server_process import start_server, stop_server
 
 from million_env._proto import env_pb2, env_pb2_grpc
 from million_env.cli import parse_args
