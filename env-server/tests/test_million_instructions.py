@@ -123,3 +123,22 @@ def test_unknown_word_is_zero_counted_and_logged_once(caplog: pytest.LogCaptureF
     assert after["unknown_words"] - before["unknown_words"] == 2
     assert after["instruction_tokens"] - before["instruction_tokens"] == 8
     assert sum("qzxvbnt" in record.getMessage() for record in caplog.records) == 1
+
+
+def test_check_instructions_command_reports_zero_unknown_words() -> None:
+    import json
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, "-m", "million_env.million.check_instructions"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    report = json.loads(done.stdout)
+    assert report["unknown_words_total"] == 0
+    assert report["sets"]["metaworld/train"]["sentences"] >= 200
+    assert report["sets"]["metaworld/heldout"]["sentences"] >= 200

@@ -188,3 +188,24 @@ def test_full_trial_never_reaches_metaworld_truncation() -> None:
         assert not truncated
         steps += 1
     assert steps == 500
+
+
+def test_ml45_ids_serve_their_splits() -> None:
+    # Slow (~1 min): building the ML45 benchmark dominates; both ids share it.
+    test_env = make("million/ML45-test")
+    train_env = make("million/ML45-train")
+    assert set(test_env.task_names) == {
+        "bin-picking-v3",
+        "box-close-v3",
+        "hand-insert-v3",
+        "door-lock-v3",
+        "door-unlock-v3",
+    }
+    assert len(train_env.task_names) == 45
+    assert not set(train_env.task_names) & set(test_env.task_names)
+    for env in (test_env, train_env):
+        obs, info = env.reset(seed=0)
+        assert info["task_name"] in env.task_names
+        assert ALL_TASK_NAMES[int(obs["task_id"])] == info["task_name"]
+        obs, info, _ = skip_instruction(env, obs, info)
+        assert obs["state"].shape == (39,) and obs["state"].any()

@@ -210,6 +210,11 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         super().close()
 
     @property
+    def task_names(self) -> tuple[str, ...]:
+        """The tasks this env samples from (a benchmark split, or PointGoal's goals)."""
+        return self._source.task_names
+
+    @property
     def current_task(self) -> SampledTask:
         """The task of the current episode (evaluation and tests read its goal)."""
         if self._task is None:
