@@ -1,0 +1,6 @@
+//! V-MPO with Pop-Art targets and the FIFO segment buffer (ALGORITHM.md §3–§5).
+
+pub mod buffer;
+pub mod returns;
+pub mod rollout;
+pub mod vmpo;

@@ -1,0 +1,110 @@
+//! n-step bootstrapped returns over a segment (ALGORITHM.md §4.1, no GAE).
+//!
+//! A step whose successor is unknown — the segment's last step, or a step that was truncated
+//! (its final observation is not in the segment because the env autoreset) — is not trained;
+//! its own value sg(V(s_t)) stands in as the return of the state, so the step before it
+//! bootstraps from a state of its own episode. Terminated steps return just their reward.
+
+use tch::{Kind, Tensor};
+
+#[derive(Debug)]
+pub struct Returns {
+    /// `[B, T]` targets G_t (unnormalised).
+    pub returns: Tensor,
+    /// `[B, T]` bool: steps that enter the losses.
+    pub trainable: Tensor,
+}
+
+/// `rewards`, `values` (unnormalised, no gradient) `[B, T]` float; `terminated`, `truncated`
+/// `[B, T]` bool.
+pub fn bootstrapped_returns(
+    rewards: &Tensor,
+    values: &Tensor,
+    terminated: &Tensor,
+    truncated: &Tensor,
+    gamma: f64,
+) -> Returns {
+    let (_, t_len) = rewards.size2().expect("rewards are [B, T]");
+    let values = values.detach();
+    let cut = truncated.logical_and(&terminated.logical_not());
+    let continues = terminated.logical_not().to_kind(rewards.kind());
+    let mut columns = Vec::with_capacity(t_len as usize);
+    let mut next = values.select(1, t_len - 1);
+    columns.push(next.shallow_clone());
+    for t in (0..t_len - 1).rev() {
+        let through = rewards.select(1, t) + continues.select(1, t) * &next * gamma;
+        next = values.select(1, t).where_self(&cut.select(1, t), &through);
+        columns.push(next.shallow_clone());
+    }
+    columns.reverse();
+    let last = Tensor::arange(t_len, (Kind::Int64, rewards.device()))
+        .eq(t_len - 1)
+        .unsqueeze(0);
+    Returns {
+        returns: Tensor::stack(&columns, 1),
+        trainable: cut.logical_or(&last).logical_not(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn t(v: &[f32]) -> Tensor {
+        Tensor::from_slice(v).view([1, -1])
+    }
+    fn flags(v: &[bool]) -> Tensor {
+        Tensor::from_slice(v).view([1, -1])
+    }
+    fn vec(t: &Tensor) -> Vec<f32> {
+        Vec::<f32>::try_from(t.flatten(0, -1)).unwrap()
+    }
+
+    #[test]
+    fn plain_bootstrap_from_the_last_step() {
+        // G2 = V2 = 10; G1 = 1 + 0.5·10 = 6; G0 = 2 + 0.5·6 = 5.
+        let r = bootstrapped_returns(
+            &t(&[2.0, 1.0, 7.0]),
+            &t(&[0.0, 0.0, 10.0]),
+            &flags(&[false, false, false]),
+            &flags(&[false, false, false]),
+            0.5,
+        );
+        assert_eq!(vec(&r.returns), vec![5.0, 6.0, 10.0]);
+        assert_eq!(
+            Vec::<bool>::try_from(r.trainable.flatten(0, -1)).unwrap(),
+            vec![true, true, false]
+        );
+    }
+
+    #[test]
+    fn termination_cuts_and_truncation_bootstraps_from_its_own_value() {
+        // Steps: 0 1(terminated) 2 3(truncated) 4 5(last). γ = 0.5.
+        // G5 = V5 = 8; G4 = 1 + 0.5·8 = 5; G3 = V3 = 4 (not trained);
+        // G2 = 3 + 0.5·4 = 5; G1 = 2 (terminal); G0 = 1 + 0.5·2 = 2.
+        let r = bootstrapped_returns(
+            &t(&[1.0, 2.0, 3.0, 100.0, 1.0, 100.0]),
+            &t(&[50.0, 50.0, 50.0, 4.0, 50.0, 8.0]),
+            &flags(&[false, true, false, false, false, false]),
+            &flags(&[false, false, false, true, false, false]),
+            0.5,
+        );
+        assert_eq!(vec(&r.returns), vec![2.0, 2.0, 5.0, 4.0, 5.0, 8.0]);
+        assert_eq!(
+            Vec::<bool>::try_from(r.trainable.flatten(0, -1)).unwrap(),
+            vec![true, true, true, false, true, false]
+        );
+    }
+
+    #[test]
+    fn terminated_and_truncated_together_count_as_terminated() {
+        let r = bootstrapped_returns(
+            &t(&[1.0, 3.0, 0.0]),
+            &t(&[9.0, 9.0, 9.0]),
+            &flags(&[false, true, false]),
+            &flags(&[false, true, false]),
+            1.0,
+        );
+        assert_eq!(vec(&r.returns), vec![4.0, 3.0, 9.0]);
+    }
+}

@@ -1,0 +1,373 @@
+//! Typed agent configuration. Every number of ALGORITHM.md §2–§6 is a field here; the defaults
+//! are the paper's ML10 run. Unknown keys are rejected so that a typo in a TOML file is an error
+//! instead of a silently ignored setting.
+
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("cannot read config {path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("invalid agent config: {0}")]
+    Parse(#[from] toml::de::Error),
+    #[error("invalid agent config: {0}")]
+    Invalid(String),
+}
+
+/// The agent's part of a run config: network, algorithm, buffer, optimiser and CPU threads.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct AgentConfig {
+    pub model: ModelConfig,
+    pub popart: PopArtConfig,
+    pub vmpo: VmpoConfig,
+    pub buffer: BufferConfig,
+    pub optim: OptimConfig,
+    pub runtime: RuntimeConfig,
+}
+
+/// One named observation field and its length; the token is the fields concatenated in order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObsField {
+    pub key: String,
+    pub size: usize,
+}
+
+/// Network shape (§2).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ModelConfig {
+    /// Observation fields concatenated into the token, in this order (state 39 · word 50 ·
+    /// time 1 · phase 1 = 91). The no-instructions ablation appends `prev_reward` (1).
+    pub observation: Vec<ObsField>,
+    /// Action dimension (Meta-World: 4).
+    pub action_dim: usize,
+    /// Number of task ids = Pop-Art output rows (50 Meta-World tasks).
+    pub num_tasks: usize,
+    /// GTrXL layers.
+    pub layers: usize,
+    /// Model width.
+    pub d_model: usize,
+    /// Attention heads (must divide d_model).
+    pub heads: usize,
+    /// Feed-forward hidden width.
+    pub ff_dim: usize,
+    /// Initial value of the learnable gate bias b_g (GTrXL: 2.0 keeps gates near identity).
+    pub gate_bias_init: f64,
+    /// Segment length T (steps per stored segment and per learning sequence).
+    pub segment_len: usize,
+    /// Memory length (rows of the previous segment kept per layer).
+    pub memory_len: usize,
+    /// Hidden width of the policy head.
+    pub policy_hidden: usize,
+    /// Hidden width of the value head.
+    pub value_hidden: usize,
+    /// Floor added to the softplus standard deviation [S].
+    pub min_std: f64,
+}
+
+impl Default for ModelConfig {
+    fn default() -> Self {
+        Self {
+            observation: vec![
+                ObsField {
+                    key: "state".into(),
+                    size: 39,
+                },
+                ObsField {
+                    key: "word".into(),
+                    size: 50,
+                },
+                ObsField {
+                    key: "time".into(),
+                    size: 1,
+                },
+                ObsField {
+                    key: "phase".into(),
+                    size: 1,
+                },
+            ],
+            action_dim: 4,
+            num_tasks: 50,
+            layers: 6,
+            d_model: 64,
+            heads: 4,
+            ff_dim: 256,
+            gate_bias_init: 2.0,
+            segment_len: 64,
+            memory_len: 64,
+            policy_hidden: 256,
+            value_hidden: 256,
+            min_std: 1e-4,
+        }
+    }
+}
+
+impl ModelConfig {
+    /// Length of the concatenated observation token.
+    pub fn obs_dim(&self) -> usize {
+        self.observation.iter().map(|f| f.size).sum()
+    }
+}
+
+/// Multi-task Pop-Art (§3).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct PopArtConfig {
+    /// false = the "without Pop-Art" ablation: a plain, unnormalised value head.
+    pub enabled: bool,
+    /// Step size β of the running first and second moments.
+    pub beta: f64,
+    pub sigma_min: f64,
+    pub sigma_max: f64,
+}
+
+impl Default for PopArtConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            beta: 1e-4,
+            sigma_min: 1e-2,
+            sigma_max: 1e6,
+        }
+    }
+}
+
+/// V-MPO losses (§4).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VmpoConfig {
+    pub gamma: f64,
+    pub eps_eta: f64,
+    pub eps_alpha_mu: f64,
+    pub eps_alpha_sigma: f64,
+    pub init_eta: f64,
+    pub init_alpha_mu: f64,
+    pub init_alpha_sigma: f64,
+    /// Multipliers are projected back to at least this value after every step.
+    pub min_multiplier: f64,
+    /// Normalised advantages are clipped to ±this.
+    pub advantage_clip: f64,
+    /// Fraction of valid steps kept for the policy loss (V-MPO: the top half).
+    pub top_fraction: f64,
+}
+
+impl Default for VmpoConfig {
+    fn default() -> Self {
+        Self {
+            gamma: 0.99,
+            eps_eta: 0.1,
+            eps_alpha_mu: 0.0075,
+            eps_alpha_sigma: 1e-5,
+            init_eta: 1.0,
+            init_alpha_mu: 1.0,
+            init_alpha_sigma: 1.0,
+            min_multiplier: 1e-8,
+            advantage_clip: 40.0,
+            top_fraction: 0.5,
+        }
+    }
+}
+
+/// FIFO segment buffer and learner pacing (§5).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BufferConfig {
+    /// Segments per update b.
+    pub batch_segments: usize,
+    /// Actor weights are refreshed every `target_period` updates; the buffer holds
+    /// `batch_segments · target_period` segments.
+    pub target_period: usize,
+    /// Upper bound on (samples consumed) / (samples produced).
+    pub replay_ratio: f64,
+    /// The learner starts once the buffer holds this many segments (at least `batch_segments`).
+    pub min_segments: usize,
+}
+
+impl Default for BufferConfig {
+    fn default() -> Self {
+        Self {
+            batch_segments: 128,
+            target_period: 100,
+            replay_ratio: 4.0,
+            min_segments: 128,
+        }
+    }
+}
+
+impl BufferConfig {
+    pub fn capacity(&self) -> usize {
+        self.batch_segments * self.target_period
+    }
+}
+
+/// Adam (§4.8).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct OptimConfig {
+    pub lr: f64,
+    pub beta1: f64,
+    pub beta2: f64,
+    pub eps: f64,
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        Self {
+            lr: 1e-4,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-8,
+        }
+    }
+}
+
+/// CPU use of libtorch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RuntimeConfig {
+    /// libtorch intra-op threads (`tch::set_num_threads`); on 2 cores leave one for the envs.
+    pub intra_op_threads: usize,
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        Self {
+            intra_op_threads: 1,
+        }
+    }
+}
+
+impl RuntimeConfig {
+    /// Applies the thread setting to libtorch (process-wide).
+    pub fn apply(&self) {
+        tch::set_num_threads(self.intra_op_threads.max(1) as i32);
+    }
+}
+
+impl AgentConfig {
+    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
+        let cfg: AgentConfig = toml::from_str(text)?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml_str(&text)
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let m = &self.model;
+        let bad = |msg: String| Err(ConfigError::Invalid(msg));
+        if m.observation.is_empty() || m.observation.iter().any(|f| f.size == 0) {
+            return bad("model.observation needs at least one field, each with size > 0".into());
+        }
+        if m.heads == 0 || m.d_model % m.heads != 0 {
+            return bad(format!(
+                "model.heads ({}) must divide model.d_model ({})",
+                m.heads, m.d_model
+            ));
+        }
+        for (name, v) in [
+            ("model.action_dim", m.action_dim),
+            ("model.num_tasks", m.num_tasks),
+            ("model.layers", m.layers),
+            ("model.ff_dim", m.ff_dim),
+            ("model.segment_len", m.segment_len),
+            ("model.policy_hidden", m.policy_hidden),
+            ("model.value_hidden", m.value_hidden),
+            ("buffer.batch_segments", self.buffer.batch_segments),
+            ("buffer.target_period", self.buffer.target_period),
+        ] {
+            if v == 0 {
+                return bad(format!("{name} must be > 0"));
+            }
+        }
+        if m.segment_len < 2 {
+            return bad("model.segment_len must be at least 2 (the last step bootstraps)".into());
+        }
+        if m.min_std <= 0.0 {
+            return bad("model.min_std must be > 0".into());
+        }
+        let p = &self.popart;
+        if !(p.beta > 0.0 && p.beta <= 1.0) || !(p.sigma_min > 0.0 && p.sigma_min < p.sigma_max) {
+            return bad("popart: need 0 < beta <= 1 and 0 < sigma_min < sigma_max".into());
+        }
+        let v = &self.vmpo;
+        if !(v.gamma >= 0.0 && v.gamma <= 1.0) {
+            return bad("vmpo.gamma must be in [0, 1]".into());
+        }
+        if !(v.top_fraction > 0.0 && v.top_fraction <= 1.0) {
+            return bad("vmpo.top_fraction must be in (0, 1]".into());
+        }
+        if v.min_multiplier <= 0.0
+            || v.init_eta < v.min_multiplier
+            || v.init_alpha_mu < v.min_multiplier
+            || v.init_alpha_sigma < v.min_multiplier
+        {
+            return bad("vmpo: multipliers and min_multiplier must be positive".into());
+        }
+        if v.advantage_clip <= 0.0 {
+            return bad("vmpo.advantage_clip must be > 0".into());
+        }
+        if self.buffer.replay_ratio <= 0.0 {
+            return bad("buffer.replay_ratio must be > 0".into());
+        }
+        if self.buffer.min_segments > self.buffer.capacity() {
+            return bad("buffer.min_segments exceeds the buffer capacity".into());
+        }
+        if self.optim.lr <= 0.0 {
+            return bad("optim.lr must be > 0".into());
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_paper_values() {
+        let c = AgentConfig::default();
+        assert_eq!(c.model.obs_dim(), 91);
+        assert_eq!(c.buffer.capacity(), 12_800);
+        assert_eq!((c.model.layers, c.model.d_model, c.model.heads), (6, 64, 4));
+        assert_eq!(c.vmpo.eps_eta, 0.1);
+        c.validate().unwrap();
+    }
+
+    #[test]
+    fn empty_toml_gives_defaults_and_partial_sections_merge() {
+        assert_eq!(
+            AgentConfig::from_toml_str("").unwrap(),
+            AgentConfig::default()
+        );
+        let c = AgentConfig::from_toml_str("[vmpo]\neps_eta = 0.01\n").unwrap();
+        assert_eq!(c.vmpo.eps_eta, 0.01);
+        assert_eq!(c.vmpo.gamma, 0.99);
+    }
+
+    #[test]
+    fn unknown_keys_are_rejected_with_their_name() {
+        let err = AgentConfig::from_toml_str("[vmpo]\nepsilon_eta = 0.01\n").unwrap_err();
+        assert!(err.to_string().contains("epsilon_eta"), "{err}");
+        let err = AgentConfig::from_toml_str("[modle]\n").unwrap_err();
+        assert!(err.to_string().contains("modle"), "{err}");
+    }
+
+    #[test]
+    fn inconsistent_values_are_rejected() {
+        let err = AgentConfig::from_toml_str("[model]\nheads = 5\n").unwrap_err();
+        assert!(err.to_string().contains("heads"), "{err}");
+    }
+}

@@ -1,0 +1,153 @@
+//! The MILLION network: observation token → LayerNorm → Linear → GTrXL → policy head and
+//! Pop-Art value head (ALGORITHM.md §2).
+
+pub mod acting;
+pub mod gtrxl;
+pub mod observation;
+pub mod policy;
+pub mod popart;
+
+use tch::nn::{self, LayerNorm, Linear, Module};
+use tch::{Device, Tensor};
+
+use crate::config::{ModelConfig, PopArtConfig};
+use gtrxl::Gtrxl;
+use policy::PolicyHead;
+use popart::PopArt;
+
+/// The network. Variables live in the `VarStore` it was built from; the Pop-Art statistics
+/// are non-trainable variables of the same store, so they travel with the weights.
+#[derive(Debug)]
+pub struct Model {
+    cfg: ModelConfig,
+    input_norm: LayerNorm,
+    input_proj: Linear,
+    core: Gtrxl,
+    policy: PolicyHead,
+    value_hidden: Linear,
+    popart: PopArt,
+    device: Device,
+}
+
+/// Outputs of a whole-segment forward pass.
+#[derive(Debug)]
+pub struct SegmentOutput {
+    /// Policy mean and std, `[B, T, A]`.
+    pub mean: Tensor,
+    pub std: Tensor,
+    /// Features entering the Pop-Art layer, `[B, T, value_hidden]`. The normalised value is
+    /// taken from them only after the Pop-Art update, so its gradient is for the new weights.
+    pub value_features: Tensor,
+    /// Core output `[B, T, d]`, memory for the next segment `[L, B, m, d]` and its length `[B]`.
+    pub core: gtrxl::CoreOutput,
+}
+
+impl Model {
+    pub fn new(p: &nn::Path, cfg: &ModelConfig, popart: &PopArtConfig) -> Self {
+        let d = cfg.d_model as i64;
+        let obs = cfg.obs_dim() as i64;
+        Self {
+            input_norm: nn::layer_norm(p / "input_norm", vec![obs], Default::default()),
+            input_proj: nn::linear(p / "input_proj", obs, d, Default::default()),
+            core: Gtrxl::new(
+                p / "core",
+                cfg.layers,
+                d,
+                cfg.heads as i64,
+                cfg.ff_dim as i64,
+                cfg.gate_bias_init,
+                cfg.memory_len as i64,
+                cfg.segment_len as i64,
+            ),
+            policy: PolicyHead::new(
+                p / "policy",
+                d,
+                cfg.policy_hidden as i64,
+                cfg.action_dim as i64,
+                cfg.min_std,
+            ),
+            value_hidden: nn::linear(
+                p / "value_hidden",
+                d,
+                cfg.value_hidden as i64,
+                Default::default(),
+            ),
+            popart: PopArt::new(
+                p / "popart",
+                cfg.value_hidden as i64,
+                cfg.num_tasks as i64,
+                popart.clone(),
+            ),
+            cfg: cfg.clone(),
+            device: p.device(),
+        }
+    }
+
+    pub fn config(&self) -> &ModelConfig {
+        &self.cfg
+    }
+
+    pub fn device(&self) -> Device {
+        self.device
+    }
+
+    pub fn core(&self) -> &Gtrxl {
+        &self.core
+    }
+
+    pub fn popart(&self) -> &PopArt {
+        &self.popart
+    }
+
+    pub fn popart_mut(&mut self) -> &mut PopArt {
+        &mut self.popart
+    }
+
+    /// Token `[..., obs]` → model input `[..., d]`.
+    pub fn embed(&self, obs: &Tensor) -> Tensor {
+        self.input_proj.forward(&self.input_norm.forward(obs))
+    }
+
+    pub fn policy(&self, core: &Tensor) -> (Tensor, Tensor) {
+        self.policy.forward(core)
+    }
+
+    pub fn value_features(&self, core: &Tensor) -> Tensor {
+        self.value_hidden.forward(core).relu()
+    }
+
+    /// Unnormalised value `[...]` from value features `[..., H]` and task ids `[...]`.
+    pub fn value(&self, features: &Tensor, task: &Tensor) -> Tensor {
+        let shape = task.size();
+        let h = features.size()[features.dim() - 1];
+        let flat_task = task.flatten(0, -1);
+        let n = self
+            .popart
+            .normalised(&features.reshape([-1, h]), &flat_task);
+        self.popart
+            .unnormalise(&n, &flat_task)
+            .view(shape.as_slice())
+    }
+
+    /// Learning forward pass over `obs` `[B, T, obs]` with the memory stored at segment start.
+    pub fn forward_segment(
+        &self,
+        obs: &Tensor,
+        episode_start: &Tensor,
+        memory: &Tensor,
+        memory_len: &Tensor,
+    ) -> SegmentOutput {
+        let x = self.embed(obs);
+        let core = self
+            .core
+            .forward_segment(&x, episode_start, memory, memory_len);
+        let (mean, std) = self.policy(&core.output);
+        let value_features = self.value_features(&core.output);
+        SegmentOutput {
+            mean,
+            std,
+            value_features,
+            core,
+        }
+    }
+}

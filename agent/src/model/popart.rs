@@ -1,0 +1,132 @@
+//! Multi-task Pop-Art value output (ALGORITHM.md §3): one normalised output row per task id
+//! with its own running mean μ_k and scale σ_k. The statistics are kept in f64 because
+//! ν − μ² cancels badly in f32 for returns in the hundreds.
+
+use tch::nn;
+use tch::{Kind, Tensor};
+
+use crate::config::PopArtConfig;
+
+#[derive(Debug)]
+pub struct PopArt {
+    weight: Tensor,
+    bias: Tensor,
+    mu: Tensor,
+    nu: Tensor,
+    sigma: Tensor,
+    cfg: PopArtConfig,
+}
+
+/// Per-task statistics after an update, for logging.
+#[derive(Debug, Clone, Copy)]
+pub struct PopArtSummary {
+    pub tasks_updated: i64,
+    pub mean_sigma: f64,
+}
+
+impl PopArt {
+    pub fn new(p: nn::Path, hidden: i64, num_tasks: i64, cfg: PopArtConfig) -> Self {
+        let weight = p.var(
+            "weight",
+            &[num_tasks, hidden],
+            nn::Init::Kaiming {
+                dist: nn::init::NormalOrUniform::Uniform,
+                fan: nn::init::FanInOut::FanIn,
+                non_linearity: nn::init::NonLinearity::Linear,
+            },
+        );
+        let bias = p.zeros("bias", &[num_tasks]);
+        let device = p.device();
+        let stat = |v: f64| Tensor::full([num_tasks], v, (Kind::Double, device));
+        // σ = 1 and ν = σ² + μ² = 1 make the initial normalised and unnormalised outputs equal.
+        let mu = p.add("mu", stat(0.0), false);
+        let nu = p.add("nu", stat(1.0), false);
+        let sigma = p.add("sigma", stat(1.0), false);
+        Self {
+            weight,
+            bias,
+            mu,
+            nu,
+            sigma,
+            cfg,
+        }
+    }
+
+    /// Normalised output ñ `[N]` of features `[N, H]` at task ids `[N]`.
+    pub fn normalised(&self, features: &Tensor, task: &Tensor) -> Tensor {
+        let w = self.weight.index_select(0, task);
+        (features * w).sum_dim_intlist(-1, false, features.kind()) + self.bias.index_select(0, task)
+    }
+
+    /// Unnormalised value σ_k ñ + μ_k `[N]`.
+    pub fn unnormalise(&self, normalised: &Tensor, task: &Tensor) -> Tensor {
+        let kind = normalised.kind();
+        normalised * self.sigma.index_select(0, task).to_kind(kind)
+            + self.mu.index_select(0, task).to_kind(kind)
+    }
+
+    /// (G − μ_k) / σ_k `[N]`.
+    pub fn normalise_targets(&self, targets: &Tensor, task: &Tensor) -> Tensor {
+        let kind = targets.kind();
+        (targets - self.mu.index_select(0, task).to_kind(kind))
+            / self.sigma.index_select(0, task).to_kind(kind)
+    }
+
+    pub fn mu(&self) -> &Tensor {
+        &self.mu
+    }
+
+    pub fn sigma(&self) -> &Tensor {
+        &self.sigma
+    }
+
+    /// Moves μ, ν, σ of every task present (where `valid`) towards its targets and rescales
+    /// that task's output row so that the unnormalised outputs are unchanged. A no-op when
+    /// Pop-Art is disabled (the ablation keeps μ = 0, σ = 1).
+    pub fn update(&mut self, targets: &Tensor, task: &Tensor, valid: &Tensor) -> PopArtSummary {
+        if !self.cfg.enabled {
+            return PopArtSummary {
+                tasks_updated: 0,
+                mean_sigma: 1.0,
+            };
+        }
+        tch::no_grad(|| {
+            let k = self.mu.size()[0];
+            let device = self.mu.device();
+            let g = targets.detach().to_kind(Kind::Double);
+            let w = valid.to_kind(Kind::Double);
+            let zeros = Tensor::zeros([k], (Kind::Double, device));
+            let count = zeros.index_add(0, task, &w);
+            let sum = zeros.index_add(0, task, &(&g * &w));
+            let sum_sq = zeros.index_add(0, task, &(g.square() * &w));
+            let present = count.gt(0.0);
+            let n = count.clamp_min(1.0);
+            let beta = self.cfg.beta;
+            let mu_new = (&self.mu * (1.0 - beta) + sum / &n * beta).where_self(&present, &self.mu);
+            let nu_new =
+                (&self.nu * (1.0 - beta) + sum_sq / &n * beta).where_self(&present, &self.nu);
+            let sigma_new = (&nu_new - mu_new.square())
+                .clamp_min(0.0)
+                .sqrt()
+                .clamp(self.cfg.sigma_min, self.cfg.sigma_max)
+                .where_self(&present, &self.sigma);
+            let kind = self.weight.kind();
+            let scale = (&self.sigma / &sigma_new).to_kind(kind);
+            let new_bias = ((&self.sigma * self.bias.to_kind(Kind::Double) + &self.mu - &mu_new)
+                / &sigma_new)
+                .to_kind(kind);
+            self.weight.copy_(&(&self.weight * scale.unsqueeze(1)));
+            self.bias.copy_(&new_bias);
+            self.mu.copy_(&mu_new);
+            self.nu.copy_(&nu_new);
+            self.sigma.copy_(&sigma_new);
+            PopArtSummary {
+                tasks_updated: present.sum(Kind::Int64).int64_value(&[]),
+                mean_sigma: sigma_new
+                    .masked_select(&present)
+                    .mean(Kind::Double)
+                    .double_value(&[]),
+            }
+        })
+    }
+}

@@ -1,0 +1,70 @@
+//! Shared helpers: a small model config so tests stay fast on 2 cores.
+#![allow(dead_code)]
+
+use million::config::{AgentConfig, ModelConfig, ObsField};
+use tch::{Kind, Tensor};
+
+pub fn small_model(segment_len: usize, memory_len: usize) -> ModelConfig {
+    ModelConfig {
+        observation: vec![
+            ObsField {
+                key: "state".into(),
+                size: 5,
+            },
+            ObsField {
+                key: "word".into(),
+                size: 3,
+            },
+            ObsField {
+                key: "time".into(),
+                size: 1,
+            },
+            ObsField {
+                key: "phase".into(),
+                size: 1,
+            },
+        ],
+        action_dim: 2,
+        num_tasks: 3,
+        layers: 2,
+        d_model: 16,
+        heads: 2,
+        ff_dim: 32,
+        segment_len,
+        memory_len,
+        policy_hidden: 16,
+        value_hidden: 16,
+        ..ModelConfig::default()
+    }
+}
+
+pub fn small_agent(segment_len: usize, memory_len: usize, batch: usize) -> AgentConfig {
+    let mut cfg = AgentConfig::default();
+    cfg.model = small_model(segment_len, memory_len);
+    cfg.buffer.batch_segments = batch;
+    cfg.buffer.min_segments = batch;
+    cfg.buffer.target_period = 4;
+    cfg.validate().expect("small config is valid");
+    cfg
+}
+
+/// Overwrites every relative-position bias with random values so tests exercise the distance
+/// indexing (they start at zero).
+pub fn randomise_relative_bias(vs: &tch::nn::VarStore) {
+    tch::no_grad(|| {
+        for (name, mut t) in vs.variables() {
+            if name.ends_with("rel_bias") {
+                t.copy_(&(t.randn_like() * 0.5));
+            }
+        }
+    });
+}
+
+pub fn max_abs_diff(a: &Tensor, b: &Tensor) -> f64 {
+    (a - b).abs().max().to_kind(Kind::Double).double_value(&[])
+}
+
+/// Random episode starts `[B, T]` with probability `p`, as bool.
+pub fn random_starts(b: i64, t: i64, p: f64) -> Tensor {
+    Tensor::rand([b, t], (Kind::Float, tch::Device::Cpu)).lt(p)
+}
