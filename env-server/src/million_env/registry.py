@@ -13,7 +13,7 @@ from typing import Any
 
 import gymnasium as gym
 
-from million_env.errors import invalid
+from million_env.errors import internal, invalid
 from million_env.metaworld_envs import register_metaworld_envs
 
 _LOG = logging.getLogger(__name__)
@@ -64,3 +64,5 @@ def make_env(env_id: str, kwargs: dict[str, Any]) -> gym.Env:
         raise invalid(f"cannot make {env_id} with kwargs {kwargs}: {err}") from err
     except ImportError as err:
         raise invalid(f"{env_id} needs a package this server lacks: {err}") from err
+    except Exception as err:
+        raise internal(f"making {env_id} raised {type(err).__name__}: {err}") from err

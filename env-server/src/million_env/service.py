@@ -66,6 +66,10 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         except ApiError as err:
             await context.abort(err.code, err.message)
             raise  # abort raises; this line only satisfies type checkers
+        except Exception as err:
+            _LOG.exception("unexpected error")
+            await context.abort(grpc.StatusCode.INTERNAL, f"{type(err).__name__}: {err}")
+            raise
 
     def _handle(self, name: str) -> _Handle:
         handle = self._handles.get(name)
@@ -201,6 +205,15 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
                 reply.ClearField("response")
                 reply.error.CopyFrom(
                     env_pb2.Error(code=_status_number(err.code), message=err.message)
+                )
+            except Exception as err:
+                _LOG.exception("unexpected error in a Session request")
+                reply.ClearField("response")
+                reply.error.CopyFrom(
+                    env_pb2.Error(
+                        code=_status_number(grpc.StatusCode.INTERNAL),
+                        message=f"{type(err).__name__}: {err}",
+                    )
                 )
             yield reply
 
