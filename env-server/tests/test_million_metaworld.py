@@ -52,6 +52,19 @@ def test_registered_ids() -> None:
         assert env_id in gymnasium.registry
         assert "kwargs" in description
     assert gymnasium.registry["million/ML1-train"].kwargs["task"] == "reach-v3"
+    assert gymnasium.registry["million/ML10-train"].kwargs == {
+        "instruction_set": "train",
+        "instructions": True,
+        "time_obs": "trial",
+        "action_repeat": 2,
+        "trials": 3,
+        "trial_len": 200,
+    }
+    # The id fixes its benchmark and split; they are not kwargs.
+    with pytest.raises(TypeError, match="benchmark"):
+        gymnasium.make("million/ML10-train", benchmark="ML45")
+    with pytest.raises(ValueError, match="no task name"):
+        gymnasium.make("million/ML10-train", task="reach-v3")
 
 
 def test_goal_pos_is_the_real_goal_and_words_are_glove_rows(reach_env: MillionEnv) -> None:

@@ -109,6 +109,12 @@ def test_spec_declares_the_protocol_layout(stub: env_pb2_grpc.EnvServiceStub) ->
         assert fields["instruction"].dtype == env_pb2.DTYPE_STRING
         assert fields["success"].dtype == env_pb2.DTYPE_BOOL
         assert list(fields["goal"].shape) == [3]
+        # The spec lists every protocol kwarg, defaults included.
+        made_with = made.spec.kwargs
+        assert made_with["num_goals"].int_value == 8
+        assert made_with["trial_len"].int_value == 25
+        assert made_with["instructions"].bool_value is True
+        assert made_with["instruction_set"].string_value == "train"
     finally:
         stub.Close(env_pb2.CloseRequest(handle=made.handle))
 

@@ -11,8 +11,8 @@ from million_env.million.protocol import MillionEnv
 def make_metaworld_million(
     benchmark: str,
     split: str,
-    task: str | None = None,
     *,
+    task: str | None = None,
     instruction_set: str = "train",
     instructions: bool = True,
     time_obs: str = "trial",

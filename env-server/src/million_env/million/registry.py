@@ -1,58 +1,81 @@
 """Registers the MILLION env ids with Gymnasium.
 
-Each id fixes the task source (benchmark and split, or PointGoal); the protocol
-kwargs (instruction set, ablations, trial shape) are passed through `gymnasium.make`.
+Each id binds its task source (benchmark and split, or PointGoal) into the entry
+point, so a user cannot re-point `million/ML10-train` at another benchmark; the
+protocol kwargs are registered with their defaults, read from the entry points'
+signatures (one source of truth), so the spec of a made env lists every value.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
+from collections.abc import Callable
 from typing import Any
 
 import gymnasium
 
-_PROTOCOL_KWARGS = (
-    "instruction_set='train'|'heldout', instructions=True (False: no instruction phases, "
-    "previous reward in obs), time_obs='trial'|'episode', action_repeat={ar}, trials=3, "
-    "trial_len={tl} (env steps)"
-)
-_METAWORLD_ENTRY = "million_env.million.envs:make_metaworld_million"
-_POINT_GOAL_ENTRY = "million_env.million.envs:make_point_goal_million"
+from million_env.million.envs import make_metaworld_million, make_point_goal_million
+
+_MEANINGS = {
+    "instruction_set": "'train'|'heldout' sentences",
+    "instructions": "False = no instruction phases, previous reward in obs",
+    "time_obs": "'trial'|'episode'",
+    "action_repeat": "env steps per agent step",
+    "trials": "trials per episode",
+    "trial_len": "env steps per trial",
+    "num_goals": "2|4|8",
+    "task": "Meta-World task class",
+}
 
 
-def _metaworld_ids() -> list[tuple[str, dict[str, Any], str]]:
-    protocol = _PROTOCOL_KWARGS.format(ar=2, tl=200)
-    ids: list[tuple[str, dict[str, Any], str]] = []
+def keyword_defaults(entry: Callable[..., Any]) -> dict[str, Any]:
+    """The keyword-only parameters of an entry point with their defaults."""
+    return {
+        name: parameter.default
+        for name, parameter in inspect.signature(entry).parameters.items()
+        if parameter.kind is inspect.Parameter.KEYWORD_ONLY
+    }
+
+
+def _describe(what: str, kwargs: dict[str, Any]) -> str:
+    listed = ", ".join(f"{k}={v!r} ({_MEANINGS.get(k, '')})" for k, v in kwargs.items())
+    return f"MILLION protocol over {what}; kwargs: {listed}"
+
+
+def _entries() -> list[tuple[str, Callable[..., Any], dict[str, Any], str]]:
+    entries = []
+    # `task` names the ML1 class; the other benchmarks take none (None is not sent).
+    protocol = {k: v for k, v in keyword_defaults(make_metaworld_million).items() if k != "task"}
     for benchmark in ("ML1", "ML10", "ML45"):
         for split in ("train", "test"):
-            kwargs: dict[str, Any] = {"benchmark": benchmark, "split": split}
-            what = f"Meta-World v3 {benchmark} {split} tasks"
+            kwargs = dict(protocol)
+            what = f"Meta-World v3 {benchmark} {split} tasks (GloVe instruction phases, trials)"
             if benchmark == "ML1":
-                kwargs["task"] = "reach-v3"
-                what = f"Meta-World v3 ML1 {split} goals of one task class (task='reach-v3')"
-            description = (
-                f"MILLION protocol over {what}: GloVe instruction phases then 3 trials; "
-                f"kwargs: {protocol}"
-            )
-            ids.append((f"million/{benchmark}-{split}", kwargs, description))
-    return ids
+                kwargs = {"task": "reach-v3", **kwargs}
+                what = f"Meta-World v3 ML1 {split} goals of one task class"
+            entry = functools.partial(make_metaworld_million, benchmark, split)
+            entries.append((f"million/{benchmark}-{split}", entry, kwargs, _describe(what, kwargs)))
+    point = keyword_defaults(make_point_goal_million)
+    entries.append(
+        (
+            "million/PointGoal",
+            make_point_goal_million,
+            point,
+            _describe(
+                "a 2-D point that must reach the goal named only in the instruction "
+                "(the fast learning test; task_id is always 0)",
+                point,
+            ),
+        )
+    )
+    return entries
 
 
 def register_envs() -> dict[str, str]:
     """Registers every MILLION env id (idempotent) and returns {env_id: description}."""
-    entries = [(env_id, _METAWORLD_ENTRY, kw, d) for env_id, kw, d in _metaworld_ids()]
-    entries.append(
-        (
-            "million/PointGoal",
-            _POINT_GOAL_ENTRY,
-            {},
-            "MILLION protocol over a 2-D point that must reach the one of num_goals=4 goals "
-            "named only in the instruction (the learning test's env); kwargs: "
-            + _PROTOCOL_KWARGS.format(ar=1, tl=25)
-            + ", num_goals=4",
-        )
-    )
     described: dict[str, str] = {}
-    for env_id, entry_point, kwargs, description in entries:
+    for env_id, entry_point, kwargs, description in _entries():
         if env_id not in gymnasium.registry:
             gymnasium.register(id=env_id, entry_point=entry_point, kwargs=kwargs)
         described[env_id] = description
