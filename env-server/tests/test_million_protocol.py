@@ -389,3 +389,16 @@ def test_word_following_agent_succeeds_and_word_ignoring_agent_does_not() -> Non
 
 def first_trial_success(records: list[dict[str, Any]]) -> bool:
     return next(r["info"]["success"] for r in records if r["info"]["trial_end"])
+
+
+def test_sentence_choice_is_independent_of_the_goal_choice() -> None:
+    # Goal and sentence come from different streams of the same seed; drawn from
+    # one stream, each goal would be paired with only one or two templates.
+    env = make()
+    templates: dict[str, set[str]] = {}
+    for seed in range(200):
+        _obs, info = env.reset(seed=seed)
+        template = info["instruction"].replace(info["task_name"], "{goal}")
+        templates.setdefault(info["task_name"], set()).add(template)
+    assert len(templates) == 4
+    assert all(len(used) == 5 for used in templates.values()), templates

@@ -30,6 +30,8 @@ from million_env.million.instructions import EncodedInstruction, InstructionEnco
 from million_env.million.task_source import STATE_DIM, SampledTask, TaskSource
 
 TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
+# Second entropy word of the sentence generator's seed (any constant != task streams).
+_SENTENCE_STREAM = 0x5E47E4CE
 PHASE_INSTRUCTION = "instruction"
 PHASE_TRIAL = "trial"
 
@@ -147,6 +149,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._episode_step = 0
         self._prev_reward = 0.0
         self._done = False
+        self._sentence_rng = np.random.default_rng()
 
     # ------------------------------------------------------------------ gymnasium
 
@@ -156,6 +159,9 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         super().reset(seed=seed)
         if seed is not None:
             self._source.seed(seed)
+            # A stream of its own: the source seeds its generator with `seed` too,
+            # and sharing that stream would tie the sentence choice to the task choice.
+            self._sentence_rng = np.random.default_rng([seed, _SENTENCE_STREAM])
         self._task = self._source.sample()
         self._instruction = None
         self._trial = 0
@@ -244,7 +250,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         if self._instruction is not None and len(choices) > 1:
             # A re-instruction tries another wording, as a human teacher would.
             choices = tuple(s for s in choices if s != self._instruction.text) or choices
-        return choices[int(self.np_random.integers(len(choices)))]
+        return choices[int(self._sentence_rng.integers(len(choices)))]
 
     def _act(self, action: npt.NDArray[np.float32]) -> tuple[float, bool]:
         assert self._task is not None
