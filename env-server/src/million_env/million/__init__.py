@@ -1,8 +1,25 @@
 """The MILLION episode protocol served as Gymnasium environments.
 
-`register_envs()` puts every MILLION env id into Gymnasium's registry and
-`protocol_stats()` reports process-wide counters (unknown instruction words).
-The server calls both; everything else lives in the submodules.
+Env ids (all take the protocol kwargs instruction_set='train'|'heldout',
+instructions, time_obs='trial'|'episode', action_repeat, trials, trial_len):
+
+- ``million/ML1-{train,test}`` (kwarg ``task``, default 'reach-v3'),
+  ``million/ML10-{train,test}``, ``million/ML45-{train,test}``: Meta-World v3.
+- ``million/PointGoal`` (kwarg ``num_goals`` 2|4|8): a point that must reach the
+  goal named only in the instruction; the fast learning test.
+
+Observation (Dict, this key order): ``state`` float64 (39; Meta-World's values,
+zeros in instruction phases; PointGoal: x, y, then zeros), ``word`` float32 (50;
+GloVe 6B vector of the current word, ``goal_pos`` = [goal_x, goal_y, goal_z, 0...],
+zeros in trials), ``time`` float32 (1), ``phase`` float32 (1; 1 = instruction),
+``task_id`` Discrete (index in `million_env.metaworld_tasks.ALL_TASK_NAMES`;
+PointGoal: always 0 of Discrete(1)), ``prev_reward`` float32 (1; only set without
+instructions). Info fields are declared in ``metadata["info_fields"]``; see
+`million_env.million.protocol`.
+
+`register_envs()` puts every id into Gymnasium's registry; `protocol_stats()`
+reports process-wide counters (instruction tokens fed, unknown words).
+``python -m million_env.million.check_instructions`` checks the shipped sentences.
 """
 
 from __future__ import annotations
