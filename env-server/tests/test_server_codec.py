@@ -143,6 +143,7 @@ def test_info_fields_encoded_with_presence() -> None:
     assert decoded["task_name"].tolist() == ["reach-v3", ""]
     assert decoded["goal"].dtype == np.float32 and decoded["goal"][1].tolist() == [1, 2, 3]
     assert "extra" not in decoded
-    with pytest.raises(ApiError) as caught:
-        encode_info(fields, [{"goal": [1, 2]}])
-    assert caught.value.code == grpc.StatusCode.INTERNAL
+    for wrong in ({"goal": [1, 2]}, {"success": [1.0, 0.0]}):
+        with pytest.raises(ApiError) as caught:
+            encode_info(fields, [wrong])
+        assert caught.value.code == grpc.StatusCode.INTERNAL

@@ -115,30 +115,42 @@ def encode_info(
     entries = []
     rows = len(infos)
     for field in fields:
-        dtype = field.numpy_dtype
-        if field.dtype == "str":
-            values = np.full((rows, *field.shape), "", dtype=object)
+        name = field.name
+        present = [info is not None and name in info for info in infos]
+        if field.dtype == "str" and not field.shape:
+            strings = [
+                str(info[name]) if info is not None and set_ else ""
+                for info, set_ in zip(infos, present, strict=True)
+            ]
+            value = env_pb2.Tensor(dtype=env_pb2.DTYPE_STRING, shape=(rows,), strings=strings)
         else:
-            values = np.zeros((rows, *field.shape), dtype=dtype)
-        present = [False] * rows
-        for row, info in enumerate(infos):
-            if info is None or field.name not in info:
-                continue
-            try:
-                if field.dtype == "str":
-                    values[row] = str(info[field.name])
-                else:
-                    values[row] = np.asarray(info[field.name], dtype=dtype).reshape(field.shape)
-            except (TypeError, ValueError) as err:
-                raise internal(
-                    f"info field {field.name!r} = {info[field.name]!r} does not fit its "
-                    f"declared {field.dtype}{list(field.shape)}: {err}"
-                ) from err
-            present[row] = True
-        entries.append(
-            env_pb2.InfoEntry(name=field.name, value=encode_tensor(values), present=present)
-        )
+            if field.dtype == "str":
+                values = np.full((rows, *field.shape), "", dtype=object)
+            else:
+                values = np.zeros((rows, *field.shape), dtype=field.numpy_dtype)
+            for row, info in enumerate(infos):
+                if info is not None and name in info:
+                    values[row] = _info_value(info[name], field)
+            value = encode_tensor(values)
+        entries.append(env_pb2.InfoEntry(name=name, value=value, present=present))
     return env_pb2.Info(entries=entries)
+
+
+def _info_value(value: Any, field: InfoField) -> Any:
+    try:
+        if field.dtype == "str":
+            return np.asarray(value, dtype=object).reshape(field.shape)
+        if not field.shape:
+            scalar = field.numpy_dtype.type(value)
+            if np.ndim(scalar) != 0:
+                raise ValueError("expected a scalar")
+            return scalar
+        return np.asarray(value, dtype=field.numpy_dtype).reshape(field.shape)
+    except (TypeError, ValueError) as err:
+        raise internal(
+            f"info field {field.name!r} = {value!r} does not fit its declared "
+            f"{field.dtype}{list(field.shape)}: {err}"
+        ) from err
 
 
 def decode_info(message: env_pb2.Info) -> dict[str, Any]:

@@ -29,8 +29,14 @@ _DTYPE_BY_KIND: dict[str, int] = {
 }
 
 
+_CODE_BY_NUMPY: dict[np.dtype, int] = {dt: code for code, dt in _NUMPY_BY_DTYPE.items()}
+
+
 def dtype_to_proto(dtype: np.dtype | type) -> int:
     """The proto DType of a numpy dtype; strings (``str``/``object``) are DTYPE_STRING."""
+    code = _CODE_BY_NUMPY.get(dtype)  # type: ignore[call-overload]
+    if code is not None:
+        return code
     dt = np.dtype(dtype)
     if dt.kind in ("U", "O", "S"):
         return env_pb2.DTYPE_STRING
@@ -60,8 +66,11 @@ def encode_tensor(array: np.ndarray) -> env_pb2.Tensor:
         return env_pb2.Tensor(
             dtype=code, shape=array.shape, strings=[str(s) for s in array.reshape(-1)]
         )
-    little = np.ascontiguousarray(array, dtype=_NUMPY_BY_DTYPE[code])
-    return env_pb2.Tensor(dtype=code, shape=array.shape, data=little.tobytes())
+    wire = _NUMPY_BY_DTYPE[code]
+    if array.dtype != wire:  # big-endian input
+        array = array.astype(wire)
+    # tobytes writes C order whatever the memory layout, so no contiguous copy first.
+    return env_pb2.Tensor(dtype=code, shape=array.shape, data=array.tobytes())
 
 
 def decode_tensor(tensor: env_pb2.Tensor) -> np.ndarray:
