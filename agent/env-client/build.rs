@@ -7,6 +7,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let descriptors = protox::compile([proto_file.as_str()], [proto_root])?;
     tonic_prost_build::configure()
         .build_server(false)
+        // Tensor payloads decode into `bytes::Bytes`, so observations can be sliced
+        // and handed on without copying the payload.
+        .bytes(".million.env.v1.Tensor.data")
         .compile_fds(descriptors)?;
     Ok(())
 }
