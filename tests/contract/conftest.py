@@ -28,6 +28,8 @@ DEFAULT_ENVS = (
     "Pendulum-v1",
     "CartPole-v1",
     "metaworld/ML1-train:task=reach-v3",
+    # Meta-World's own id; its goal set is random unless the seed kwarg fixes it.
+    "Meta-World/MT1:env_name=reach-v3,seed=1",
     "million/PointGoal",
     "million/ML10-train",
 )

@@ -18,6 +18,10 @@ from million_env.metaworld_envs import register_metaworld_envs
 
 _LOG = logging.getLogger(__name__)
 _LOCK = threading.Lock()
+# Meta-World builds its benchmarks (Meta-World/MT1 included) by seeding numpy's
+# global RNG and restoring it afterwards, so two constructions in parallel threads
+# would change each other's goals: environments are made one at a time.
+_MAKE_LOCK = threading.Lock()
 _DESCRIPTIONS: dict[str, str] | None = None
 
 
@@ -57,7 +61,8 @@ def make_env(env_id: str, kwargs: dict[str, Any]) -> gym.Env:
     if env_id not in known:
         raise invalid(f"unknown env id {env_id!r}; ListEnvs names the {len(known)} ids served")
     try:
-        return gym.make(env_id, disable_env_checker=True, **kwargs)
+        with _MAKE_LOCK:
+            return gym.make(env_id, disable_env_checker=True, **kwargs)
     except TypeError as err:
         raise invalid(f"{env_id} does not take kwargs {sorted(kwargs)}: {err}") from err
     except (ValueError, KeyError, AssertionError, gym.error.Error) as err:
