@@ -23,6 +23,34 @@ def test_bad_limits_rejected() -> None:
         parse_args(["--max-envs-total", "0"])
 
 
+@pytest.mark.parametrize("bad", ["ML1", "ML2", "ML10:reach-v3", "ML1:fly-v3"])
+def test_bad_preload_rejected(bad: str) -> None:
+    with pytest.raises(SystemExit):
+        parse_args(["--preload", bad])
+
+
+def test_preloaded_server_serves_the_benchmark() -> None:
+    assert parse_args(["--preload", "ML1:reach-v3", "--preload", "ML10"]).preload == [
+        "ML1:reach-v3",
+        "ML10",
+    ]
+    process, address = start_server("--preload", "ML1:reach-v3")
+    try:
+        with grpc.insecure_channel(address) as channel:
+            stub = env_pb2_grpc.EnvServiceStub(channel)
+            made = stub.Make(
+                env_pb2.MakeRequest(
+                    env_id="metaworld/ML1-test",
+                    num_envs=1,
+                    kwargs={"task": env_pb2.Value(string_value="reach-v3")},
+                ),
+                timeout=30,
+            )
+            assert made.spec.observation_space.box.shape == [39]
+    finally:
+        stop_server(process)
+
+
 def test_limits_are_enforced_by_the_running_server() -> None:
     process, address = start_server("--max-envs-per-handle", "2", "--max-envs-total", "3")
     try:

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import logging
 
+from million_env.metaworld_tasks import ALL_TASK_NAMES, BENCHMARKS
 from million_env.service import ServerLimits
 
 
@@ -26,11 +27,26 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--workers", type=int, default=None, help="threads stepping environments (default: auto)"
     )
     parser.add_argument(
+        "--preload",
+        action="append",
+        default=[],
+        metavar="BENCHMARK",
+        help="build a Meta-World benchmark before serving: ML10, ML45 or ML1:TASK (repeatable)",
+    )
+    parser.add_argument(
         "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
     )
     args = parser.parse_args(argv)
     if args.max_envs_per_handle < 1 or args.max_envs_total < 1:
         parser.error("--max-envs-per-handle and --max-envs-total must be at least 1")
+    for item in args.preload:
+        name, _, task = item.partition(":")
+        if (
+            name not in BENCHMARKS
+            or (name == "ML1") != bool(task)
+            or (task and task not in ALL_TASK_NAMES)
+        ):
+            parser.error(f"--preload {item!r}: expected ML10, ML45 or ML1:<task name>")
     return args
 
 
@@ -42,7 +58,7 @@ def main(argv: list[str] | None = None) -> None:
     from million_env.server import serve
 
     limits = ServerLimits(args.max_envs_per_handle, args.max_envs_total)
-    asyncio.run(serve(args.address, limits, args.workers))
+    asyncio.run(serve(args.address, limits, args.workers, args.preload))
 
 
 if __name__ == "__main__":

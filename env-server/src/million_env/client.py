@@ -20,6 +20,8 @@ from million_env.tensors import encode_tensor, python_to_values
 
 API_VERSION = env_pb2.ApiVersion(major=1, minor=0)
 CLIENT_NAME = "million_env.client"
+# The first Make of a Meta-World benchmark builds its goal set (ML45: about a minute).
+MAKE_TIMEOUT_S = 600.0
 _MODE_TO_PROTO = {
     AutoresetMode.NEXT_STEP: env_pb2.AUTORESET_MODE_NEXT_STEP,
     AutoresetMode.SAME_STEP: env_pb2.AUTORESET_MODE_SAME_STEP,
@@ -55,7 +57,7 @@ class _RemoteBatch:
                     num_envs=num_envs,
                     autoreset_mode=autoreset_mode,
                 ),
-                timeout=timeout,
+                timeout=None if timeout is None else max(timeout, MAKE_TIMEOUT_S),
             )
         except BaseException:
             self._channel.close()

@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import signal
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 
 import grpc
@@ -12,6 +13,8 @@ from grpc_health.v1 import health, health_pb2, health_pb2_grpc
 from grpc_reflection.v1alpha import reflection
 
 from million_env._proto import env_pb2, env_pb2_grpc
+from million_env.metaworld_envs import split_observation_space
+from million_env.metaworld_tasks import DEFAULT_BENCHMARK_SEED, SPLITS
 from million_env.registry import env_descriptions
 from million_env.service import EnvService, ServerLimits
 
@@ -20,8 +23,21 @@ SERVICE_NAME = env_pb2.DESCRIPTOR.services_by_name["EnvService"].full_name
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 
 
-async def serve(address: str, limits: ServerLimits, workers: int | None = None) -> None:
-    """Serves until SIGINT/SIGTERM; prints the bound port for scripts that pass :0."""
+def preload(benchmarks: list[str]) -> None:
+    """Builds Meta-World benchmarks (``ML10``, ``ML45``, ``ML1:reach-v3``) and their
+    split observation spaces now, so that the first Make of them is quick."""
+    for item in benchmarks:
+        name, _, task = item.partition(":")
+        for split in SPLITS:
+            _LOG.info("preloading Meta-World %s %s", item, split)
+            split_observation_space(name, split, task or None, DEFAULT_BENCHMARK_SEED)
+
+
+async def serve(
+    address: str, limits: ServerLimits, workers: int | None = None, preloads: Sequence[str] = ()
+) -> None:
+    """Serves until SIGINT/SIGTERM; prints the bound port for scripts that pass :0.
+    Health turns SERVING once the preloads are built."""
     env_descriptions()  # registers every id before the first client asks
     executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="env")
     server = grpc.aio.server(
@@ -41,6 +57,8 @@ async def serve(address: str, limits: ServerLimits, workers: int | None = None) 
     if port == 0:
         raise OSError(f"cannot bind {address}")
     await server.start()
+    if preloads:
+        await asyncio.get_running_loop().run_in_executor(executor, preload, list(preloads))
     for name in ("", SERVICE_NAME):
         await health_servicer.set(name, health_pb2.HealthCheckResponse.SERVING)
     host = address.rsplit(":", 1)[0]
