@@ -87,3 +87,14 @@ def test_negative_seed_rejected() -> None:
     sampler = MetaWorldTaskSampler("ML1", "train", task="reach-v3")
     with pytest.raises(ValueError, match="non-negative"):
         sampler.seed(-1)
+
+
+def test_max_built_envs_caps_memory_and_keeps_the_sequence() -> None:
+    capped = MetaWorldTaskSampler("ML10", "train", seed=8, max_built_envs=2)
+    free = MetaWorldTaskSampler("ML10", "train", seed=8)
+    sequence = _rollout(capped, 10)
+    assert len(capped.envs()) <= 2
+    assert sequence == _rollout(free, 10)
+    assert len({name for name, _, _ in sequence}) > 2
+    with pytest.raises(ValueError, match="max_built_envs"):
+        MetaWorldTaskSampler("ML10", "train", max_built_envs=0)

@@ -80,7 +80,8 @@ class SampledTask:
 class MetaWorldTaskSampler:
     """Seeded sampling of a (task class, goal variation) from a Meta-World v3 benchmark split.
 
-    One Meta-World env per task class is built once (on first use) and reused.
+    One Meta-World env per task class is built once (on first use) and reused;
+    ``max_built_envs`` bounds how many stay built (least recently used are closed).
     """
 
     def __init__(
@@ -90,8 +91,14 @@ class MetaWorldTaskSampler:
         task: str | None = None,
         seed: int | None = None,
         benchmark_seed: int = DEFAULT_BENCHMARK_SEED,
+        max_built_envs: int | None = None,
     ) -> None:
         _validate(benchmark, split, task)
+        if max_built_envs is not None and max_built_envs < 1:
+            raise ValueError(f"max_built_envs must be at least 1, got {max_built_envs}")
+        # Each built Meta-World env holds ~20 MB; ML45 builds up to 45 of them per
+        # sampler unless this caps it (least recently used ones are closed).
+        self._max_built_envs = max_built_envs
         self.benchmark = benchmark
         self.split = split
         bench = load_benchmark(benchmark, task, benchmark_seed)
@@ -127,7 +134,7 @@ class MetaWorldTaskSampler:
         return SampledTask(name=name, task_id=_TASK_IDS[name], env=env)
 
     def envs(self) -> list[Any]:
-        """The Meta-World envs built so far."""
+        """The Meta-World envs built now, least recently used first."""
         return list(self._envs.values())
 
     def close(self) -> None:
@@ -136,11 +143,14 @@ class MetaWorldTaskSampler:
         self._envs.clear()
 
     def _env(self, name: str) -> Any:
-        env = self._envs.get(name)
+        env = self._envs.pop(name, None)
         if env is None:
+            if self._max_built_envs is not None and len(self._envs) >= self._max_built_envs:
+                oldest = next(iter(self._envs))
+                self._envs.pop(oldest).close()
             env = self._classes[name]()
             env.seed(self._env_seed(name))
-            self._envs[name] = env
+        self._envs[name] = env  # (re)inserted last: the dict's order is recency
         return env
 
     def _env_seed(self, name: str) -> int:
