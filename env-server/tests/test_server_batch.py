@@ -121,3 +121,15 @@ def test_spec_kwargs_and_unknown_kwargs() -> None:
     with pytest.raises(ApiError) as caught:
         EnvBatch("Pendulum-v1", {"gravity_typo": 1}, 1, env_pb2.AUTORESET_MODE_NEXT_STEP)
     assert caught.value.code == grpc.StatusCode.INVALID_ARGUMENT
+
+
+def test_reset_options_reach_the_env() -> None:
+    batch = EnvBatch("CartPole-v1", {}, 2, env_pb2.AUTORESET_MODE_NEXT_STEP)
+    try:
+        wide = decode_observations(batch.reset([], [0, 1], {}).observation)
+        narrow = decode_observations(
+            batch.reset([], [0, 1], {"low": -0.001, "high": 0.001}).observation
+        )
+        assert np.abs(narrow).max() <= 0.001 < np.abs(wide).max()
+    finally:
+        batch.close()
