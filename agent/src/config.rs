@@ -271,7 +271,7 @@ impl AgentConfig {
         if m.observation.is_empty() || m.observation.iter().any(|f| f.size == 0) {
             return bad("model.observation needs at least one field, each with size > 0".into());
         }
-        if m.heads == 0 || m.d_model % m.heads != 0 {
+        if m.heads == 0 || !m.d_model.is_multiple_of(m.heads) {
             return bad(format!(
                 "model.heads ({}) must divide model.d_model ({})",
                 m.heads, m.d_model
@@ -299,14 +299,14 @@ impl AgentConfig {
             return bad("model.min_std must be > 0".into());
         }
         let p = &self.popart;
-        if !(p.beta > 0.0 && p.beta <= 1.0) || !(p.sigma_min > 0.0 && p.sigma_min < p.sigma_max) {
+        if p.beta <= 0.0 || p.beta > 1.0 || p.sigma_min <= 0.0 || p.sigma_min >= p.sigma_max {
             return bad("popart: need 0 < beta <= 1 and 0 < sigma_min < sigma_max".into());
         }
         let v = &self.vmpo;
-        if !(v.gamma >= 0.0 && v.gamma <= 1.0) {
+        if !(0.0..=1.0).contains(&v.gamma) {
             return bad("vmpo.gamma must be in [0, 1]".into());
         }
-        if !(v.top_fraction > 0.0 && v.top_fraction <= 1.0) {
+        if v.top_fraction <= 0.0 || v.top_fraction > 1.0 {
             return bad("vmpo.top_fraction must be in (0, 1]".into());
         }
         if v.min_multiplier <= 0.0

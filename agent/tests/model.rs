@@ -9,6 +9,8 @@ use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
 
 fn model(segment_len: usize, memory_len: usize) -> (VarStore, Model) {
+    // One intra-op thread: two spin-waiting pools on a shared 2-core machine crawl.
+    tch::set_num_threads(1);
     tch::manual_seed(7);
     let vs = VarStore::new(Device::Cpu);
     let m = Model::new(

@@ -10,6 +10,8 @@
 use tch::nn::{self, LayerNorm, Linear, Module};
 use tch::{Device, Kind, Tensor};
 
+use crate::config::ModelConfig;
+
 /// GRU-type gate of GTrXL: `out = (1 − z) ⊙ x + z ⊙ h`.
 #[derive(Debug)]
 pub struct Gate {
@@ -162,25 +164,18 @@ pub struct Gtrxl {
 }
 
 impl Gtrxl {
-    pub fn new(
-        p: nn::Path,
-        layers: usize,
-        d: i64,
-        heads: i64,
-        ff: i64,
-        gate_bias: f64,
-        memory_len: i64,
-        segment_len: i64,
-    ) -> Self {
-        let max_distance = memory_len + segment_len;
-        let layers = (0..layers)
+    pub fn new(p: nn::Path, cfg: &ModelConfig) -> Self {
+        let d = cfg.d_model as i64;
+        let memory_len = cfg.memory_len as i64;
+        let max_distance = memory_len + cfg.segment_len as i64;
+        let layers = (0..cfg.layers)
             .map(|i| {
                 GtrxlLayer::new(
                     &p / format!("layer{i}"),
                     d,
-                    heads,
-                    ff,
-                    gate_bias,
+                    cfg.heads as i64,
+                    cfg.ff_dim as i64,
+                    cfg.gate_bias_init,
                     max_distance,
                 )
             })

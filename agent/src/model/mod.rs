@@ -49,16 +49,7 @@ impl Model {
         Self {
             input_norm: nn::layer_norm(p / "input_norm", vec![obs], Default::default()),
             input_proj: nn::linear(p / "input_proj", obs, d, Default::default()),
-            core: Gtrxl::new(
-                p / "core",
-                cfg.layers,
-                d,
-                cfg.heads as i64,
-                cfg.ff_dim as i64,
-                cfg.gate_bias_init,
-                cfg.memory_len as i64,
-                cfg.segment_len as i64,
-            ),
+            core: Gtrxl::new(p / "core", cfg),
             policy: PolicyHead::new(
                 p / "policy",
                 d,

@@ -39,8 +39,10 @@ pub fn small_model(segment_len: usize, memory_len: usize) -> ModelConfig {
 }
 
 pub fn small_agent(segment_len: usize, memory_len: usize, batch: usize) -> AgentConfig {
-    let mut cfg = AgentConfig::default();
-    cfg.model = small_model(segment_len, memory_len);
+    let mut cfg = AgentConfig {
+        model: small_model(segment_len, memory_len),
+        ..AgentConfig::default()
+    };
     cfg.buffer.batch_segments = batch;
     cfg.buffer.min_segments = batch;
     cfg.buffer.target_period = 4;

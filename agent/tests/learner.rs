@@ -1,0 +1,202 @@
+//! The learner: one update end to end, multipliers, a bandit that must be learnt, checkpoints.
+
+mod common;
+
+use std::collections::HashMap;
+
+use common::small_agent;
+use million::algo::buffer::{BufferCounters, SegmentBatch};
+use million::checkpoint;
+use million::config::AgentConfig;
+use million::learner::Learner;
+use million::model::policy::sample_actions;
+use tch::{Device, Kind, Tensor};
+
+const TARGET: [f32; 2] = [0.5, -0.3];
+
+/// Segments acted by the learner's current policy from zero memory, with one fixed
+/// observation; reward −‖a − TARGET‖².
+fn bandit_batch(learner: &Learner, b: i64) -> SegmentBatch {
+    let cfg = learner.config();
+    let t = cfg.model.segment_len as i64;
+    let model = learner.model();
+    let obs = Tensor::ones(
+        [b, t, cfg.model.obs_dim() as i64],
+        (Kind::Float, Device::Cpu),
+    )
+    .cumsum(-1, Kind::Float);
+    let starts = Tensor::zeros([b, t], (Kind::Bool, Device::Cpu));
+    let _ = starts.narrow(1, 0, 1).fill_(1);
+    let (memory, memory_len) = model.core().empty_memory(b, Device::Cpu);
+    let out = tch::no_grad(|| model.forward_segment(&obs, &starts, &memory, &memory_len));
+    let actions = sample_actions(&out.mean, &out.std);
+    let target = Tensor::from_slice(&TARGET).view([1, 1, 2]);
+    let rewards = -(&actions.clamp(-1.0, 1.0) - target)
+        .square()
+        .sum_dim_intlist(-1, false, Kind::Float);
+    let none = || Tensor::zeros([b, t], (Kind::Bool, Device::Cpu));
+    SegmentBatch {
+        obs,
+        actions,
+        rewards,
+        terminated: none(),
+        truncated: none(),
+        episode_start: starts,
+        instruction: none(),
+        task: Tensor::zeros([b, t], (Kind::Int64, Device::Cpu)).fill_(1),
+        behaviour_mean: out.mean,
+        behaviour_std: out.std,
+        memory,
+        memory_len,
+    }
+}
+
+fn learner(cfg: AgentConfig, seed: i64) -> Learner {
+    cfg.runtime.apply();
+    tch::manual_seed(seed);
+    Learner::new(cfg, Device::Cpu)
+}
+
+#[test]
+fn one_update_counts_the_right_steps_and_moves_the_weights() {
+    let cfg = small_agent(8, 8, 4);
+    let mut l = learner(cfg, 1);
+    let batch = bandit_batch(&l, 4);
+    // Segment 0: instruction steps 0..3. Segment 1: truncated at 4. Segment 2: terminated at 2.
+    let _ = batch.instruction.get(0).narrow(0, 0, 3).fill_(1);
+    let _ = batch.truncated.get(1).narrow(0, 4, 1).fill_(1);
+    let _ = batch.terminated.get(2).narrow(0, 2, 1).fill_(1);
+    let before = l.model().config().clone();
+    let w0 = l.var_store().variables()["policy.out.weight"].copy();
+    let m = l.update(&batch).unwrap();
+    // Value steps: 4 segments × 7 (the last step bootstraps) − 1 truncated = 27.
+    assert_eq!(m.value_steps, 27);
+    // Policy steps: 27 − 3 instruction steps = 24; the top half is 12.
+    assert_eq!(m.policy_steps, 24);
+    assert_eq!(m.selected_steps, 12);
+    assert!(m.loss.is_finite());
+    // Behaviour = current policy: both KLs start at zero.
+    assert!(m.kl_mu.abs() < 1e-10 && m.kl_sigma.abs() < 1e-10, "{m:?}");
+    let w1 = &l.var_store().variables()["policy.out.weight"];
+    assert!((w1 - &w0).abs().max().double_value(&[]) > 0.0);
+    assert_eq!(l.model().config(), &before);
+    assert_eq!(l.updates(), 1);
+}
+
+#[test]
+fn multipliers_stay_positive_under_a_huge_learning_rate() {
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.optim.lr = 0.5;
+    let mut l = learner(cfg.clone(), 2);
+    for _ in 0..6 {
+        let batch = bandit_batch(&l, 4);
+        l.update(&batch).unwrap();
+        for (name, t) in [
+            ("eta", &l.multipliers().eta),
+            ("alpha_mu", &l.multipliers().alpha_mu),
+            ("alpha_sigma", &l.multipliers().alpha_sigma),
+        ] {
+            let v = t.double_value(&[]);
+            assert!(v >= cfg.vmpo.min_multiplier * 0.999, "{name} = {v}");
+        }
+    }
+    // ∂L/∂α_Σ = ε_αΣ − C_Σ > 0 while the policy barely moves its std: α_Σ is driven to the floor.
+    assert!(l.multipliers().alpha_sigma.double_value(&[]) < 1e-6);
+}
+
+#[test]
+fn the_policy_learns_a_bandit() {
+    let mut cfg = small_agent(8, 8, 16);
+    cfg.optim.lr = 3e-3;
+    // γ = 0: every step is a one-step bandit, so advantages carry no noise from later actions.
+    cfg.vmpo.gamma = 0.0;
+    let mut l = learner(cfg, 3);
+    let distance = |l: &Learner| {
+        let b = bandit_batch(l, 16);
+        let target = Tensor::from_slice(&TARGET).view([1, 1, 2]);
+        (b.behaviour_mean - target)
+            .square()
+            .sum_dim_intlist(-1, false, Kind::Float)
+            .sqrt()
+            .mean(Kind::Float)
+            .double_value(&[])
+    };
+    let start = distance(&l);
+    for _ in 0..150 {
+        let batch = bandit_batch(&l, 16);
+        l.update(&batch).unwrap();
+    }
+    let end = distance(&l);
+    assert!(
+        end < 0.1 && end < 0.25 * start,
+        "distance to the best action {start} → {end}"
+    );
+}
+
+#[test]
+fn a_checkpoint_restores_everything() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ckpt.safetensors");
+    let cfg = small_agent(8, 8, 4);
+    let mut a = learner(cfg.clone(), 4);
+    for _ in 0..3 {
+        let batch = bandit_batch(&a, 4);
+        a.update(&batch).unwrap();
+    }
+    let counters = BufferCounters {
+        produced_segments: 40,
+        consumed_segments: 12,
+    };
+    let extra = HashMap::from([("run".to_string(), "test".to_string())]);
+    checkpoint::save(&path, &a, 320, counters, &extra).unwrap();
+    assert_eq!(
+        std::fs::read_dir(dir.path()).unwrap().count(),
+        1,
+        "no temp file left"
+    );
+
+    let meta = checkpoint::read_meta(&path).unwrap();
+    assert_eq!(meta.config, cfg);
+    let mut b = learner(meta.config.clone(), 99);
+    let loaded = checkpoint::load(&path, &mut b).unwrap();
+    assert_eq!(loaded.counters.updates, 3);
+    assert_eq!(loaded.counters.adam_steps, 3);
+    assert_eq!(loaded.counters.agent_steps, 320);
+    assert_eq!(loaded.counters.buffer, counters);
+    assert_eq!(loaded.extra, extra);
+    assert_eq!(b.updates(), 3);
+    let va = a.var_store().variables();
+    for (name, t) in b.var_store().variables() {
+        assert!(t.equal(&va[&name]), "{name} differs after loading");
+    }
+    // Optimiser state too: the next update is the same on both.
+    let batch = bandit_batch(&a, 4);
+    let ma = a.update(&batch).unwrap();
+    let mb = b.update(&batch).unwrap();
+    assert!(
+        (ma.loss - mb.loss).abs() < 1e-6,
+        "{} vs {}",
+        ma.loss,
+        mb.loss
+    );
+    let pa = &a.var_store().variables()["core.layer0.q.weight"];
+    let pb = &b.var_store().variables()["core.layer0.q.weight"];
+    assert!((pa - pb).abs().max().double_value(&[]) < 1e-6);
+}
+
+#[test]
+fn loading_a_checkpoint_of_another_model_or_a_broken_file_fails_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("ckpt.safetensors");
+    let a = learner(small_agent(8, 8, 4), 5);
+    checkpoint::save(&path, &a, 0, BufferCounters::default(), &HashMap::new()).unwrap();
+    let mut other = learner(small_agent(8, 4, 4), 5);
+    let err = checkpoint::load(&path, &mut other).unwrap_err();
+    assert!(err.to_string().contains("model config"), "{err}");
+
+    let broken = dir.path().join("broken.safetensors");
+    std::fs::write(&broken, b"not a checkpoint").unwrap();
+    let mut b = learner(small_agent(8, 8, 4), 5);
+    assert!(checkpoint::load(&broken, &mut b).is_err());
+    assert!(checkpoint::load(&dir.path().join("missing"), &mut b).is_err());
+}
