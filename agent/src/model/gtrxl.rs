@@ -128,7 +128,13 @@ impl GtrxlLayer {
             .forward(x_norm)
             .view([b, q_len, self.heads, self.d / self.heads])
             .transpose(1, 2);
-        let y = Tensor::scaled_dot_product_attention(&q, k, v, Some(bias), 0.0, false, None, false)
+        // Plain matmul-softmax-matmul: with a bias that needs a gradient (the relative bias)
+        // libtorch's fused attention falls back to a slower path with extra −∞ checks.
+        let scale = 1.0 / ((self.d / self.heads) as f64).sqrt();
+        let scores = (q * scale).matmul(&k.transpose(-2, -1)) + bias;
+        let y = scores
+            .softmax(-1, Kind::Float)
+            .matmul(v)
             .transpose(1, 2)
             .reshape([b, q_len, self.d]);
         let y = self.out.forward(&y).relu();

@@ -120,12 +120,15 @@ impl PopArt {
             self.mu.copy_(&mu_new);
             self.nu.copy_(&nu_new);
             self.sigma.copy_(&sigma_new);
+            let tasks_updated = present.sum(Kind::Int64).int64_value(&[]);
+            let shown = if tasks_updated > 0 {
+                sigma_new.masked_select(&present)
+            } else {
+                sigma_new.shallow_clone()
+            };
             PopArtSummary {
-                tasks_updated: present.sum(Kind::Int64).int64_value(&[]),
-                mean_sigma: sigma_new
-                    .masked_select(&present)
-                    .mean(Kind::Double)
-                    .double_value(&[]),
+                tasks_updated,
+                mean_sigma: shown.mean(Kind::Double).double_value(&[]),
             }
         })
     }
