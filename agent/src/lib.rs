@@ -1,5 +1,19 @@
 //! The MILLION agent: GTrXL memory, Gaussian policy, Pop-Art values, V-MPO with a FIFO
 //! segment buffer (ALGORITHM.md §2–§6).
+//!
+//! How the pieces fit (one actor thread, one learner thread, `runtime.intra_op_threads` = 1):
+//! - [`config::AgentConfig`]: every hyperparameter, paper defaults, unknown keys rejected;
+//!   call `cfg.runtime.apply()` once at start-up.
+//! - [`learner::Learner`] owns the trained [`model::Model`], η/α and Adam;
+//!   `Learner::copy_weights_to` refreshes an actor's `VarStore` (do it between segments).
+//! - Acting: `Model::acting_state(B)` then `Model::act(&mut state, obs [B, obs], episode_start
+//!   [B])` → behaviour mean/std; sample with [`model::policy::sample_actions`] (store the
+//!   unclipped sample, clip only for the env). At each segment start hand
+//!   `state.segment_start_memory()` to [`algo::rollout::RolloutCollector::begin`], push one
+//!   [`algo::rollout::StepRecord`] per step; every T steps it yields a
+//!   [`algo::buffer::SegmentBatch`] for [`algo::buffer::SegmentBuffer::push_batch`].
+//! - Learning: `SegmentBuffer::sample` (throttled by the replay ratio) → `Learner::update`.
+//! - [`checkpoint::save`] / [`checkpoint::load`]: one atomic safetensors file.
 pub use million_env as env;
 
 pub mod algo;

@@ -200,3 +200,34 @@ fn loading_a_checkpoint_of_another_model_or_a_broken_file_fails_clearly() {
     assert!(checkpoint::load(&broken, &mut b).is_err());
     assert!(checkpoint::load(&dir.path().join("missing"), &mut b).is_err());
 }
+
+#[test]
+fn an_actor_store_receives_the_learner_weights() {
+    use million::model::Model;
+    let cfg = small_agent(8, 8, 4);
+    let mut l = learner(cfg.clone(), 6);
+    let batch = bandit_batch(&l, 4);
+    l.update(&batch).unwrap();
+    tch::manual_seed(1234);
+    let mut actor_vs = tch::nn::VarStore::new(Device::Cpu);
+    let actor = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
+    let run = |m: &Model| {
+        tch::no_grad(|| {
+            m.forward_segment(
+                &batch.obs,
+                &batch.episode_start,
+                &batch.memory,
+                &batch.memory_len,
+            )
+            .mean
+        })
+    };
+    assert!(!run(&actor).equal(&run(l.model())));
+    l.copy_weights_to(&mut actor_vs).unwrap();
+    assert!(run(&actor).equal(&run(l.model())));
+    let sigma = actor_vs.variables()["popart.sigma"].shallow_clone();
+    assert!(
+        sigma.equal(l.model().popart().sigma()),
+        "Pop-Art statistics travel too"
+    );
+}
