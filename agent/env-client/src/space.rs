@@ -177,6 +177,29 @@ impl Space {
     }
 }
 
+impl fmt::Display for Space {
+    /// A one-line summary: `Box(float32, [3])`, `Discrete(2)`, `Dict{a: ..., b: ...}`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Space::Box(b) => write!(f, "Box({}, {:?})", b.dtype, b.shape),
+            Space::Discrete { n, start: 0 } => write!(f, "Discrete({n})"),
+            Space::Discrete { n, start } => write!(f, "Discrete({n}, start={start})"),
+            Space::MultiBinary { shape } => write!(f, "MultiBinary({shape:?})"),
+            Space::MultiDiscrete { nvec, .. } => write!(f, "MultiDiscrete({nvec:?})"),
+            Space::Dict(entries) => {
+                f.write_str("Dict{")?;
+                for (i, (name, s)) in entries.iter().enumerate() {
+                    if i > 0 {
+                        f.write_str(", ")?;
+                    }
+                    write!(f, "{name}: {s}")?;
+                }
+                f.write_str("}")
+            }
+        }
+    }
+}
+
 fn collect_leaves<'a>(space: &'a Space, prefix: &str, out: &mut Vec<(String, &'a Space)>) {
     match space {
         Space::Dict(entries) => {

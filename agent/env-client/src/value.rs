@@ -177,9 +177,36 @@ pub fn parse_kwargs<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Kwarg
     Ok(out)
 }
 
+/// Parses an env case as the contract runners write it: `ID` or
+/// `ID:key=value,key=value` (the same syntax as pytest's `--env`).
+pub fn parse_env_case(text: &str) -> Result<(String, Kwargs), String> {
+    let (env_id, rest) = text.split_once(':').unwrap_or((text, ""));
+    let env_id = env_id.trim();
+    if env_id.is_empty() {
+        return Err(format!("env case {text:?} has no env id"));
+    }
+    let kwargs = parse_kwargs(rest.split(',').map(str::trim).filter(|s| !s.is_empty()))
+        .map_err(|e| format!("env case {text:?}: {e}"))?;
+    Ok((env_id.to_owned(), kwargs))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn parses_env_cases_like_the_pytest_runner() {
+        let (id, kw) = parse_env_case("Meta-World/MT1:env_name=reach-v3,seed=1").unwrap();
+        assert_eq!(id, "Meta-World/MT1");
+        assert_eq!(kw["env_name"], Value::from("reach-v3"));
+        assert_eq!(kw["seed"], Value::Int(1));
+        assert_eq!(
+            parse_env_case("CartPole-v1").unwrap(),
+            ("CartPole-v1".into(), Kwargs::new())
+        );
+        assert!(parse_env_case(":x=1").is_err());
+        assert!(parse_env_case("A-v0:novalue").is_err());
+    }
 
     #[test]
     fn parses_json_values_and_bare_strings() {

@@ -290,3 +290,29 @@ async fn version_mismatch_and_unreachable_servers_are_clear_errors() {
         other => panic!("expected Unreachable after 4 attempts, got {other:?}"),
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn closing_or_dropping_a_pool_frees_its_envs() {
+    init_tracing();
+    let server = Server::start().await;
+    let client = EnvClient::connect(&server.addr, ClientConfig::default())
+        .await
+        .unwrap();
+    let alive = async || client.stats().await.unwrap()["envs_alive"];
+    let pool = EnvPool::connect(config(&[&server], 3, 1, 0)).await.unwrap();
+    assert_eq!(alive().await, 3.0);
+    pool.close().await.unwrap();
+    assert_eq!(alive().await, 0.0);
+
+    let pool = EnvPool::connect(config(&[&server], 5, 2, 0)).await.unwrap();
+    assert_eq!(alive().await, 5.0);
+    drop(pool);
+    let start = std::time::Instant::now();
+    while alive().await != 0.0 {
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "a dropped pool's envs stay alive"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}

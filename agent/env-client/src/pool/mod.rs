@@ -505,14 +505,42 @@ impl EnvPool {
     /// Closes every handle; the first failure is returned after trying all.
     pub async fn close(mut self) -> Result<()> {
         let mut first_err = None;
-        for group in &mut self.groups {
-            for shard in &mut group.shards {
-                if let Err(e) = shard.close().await {
+        for group in std::mem::take(&mut self.groups) {
+            for shard in group.shards {
+                if let Err(e) = shard.client().close(shard.handle()).await {
                     first_err.get_or_insert(e);
                 }
             }
         }
         first_err.map_or(Ok(()), Err)
+    }
+}
+
+impl Drop for EnvPool {
+    /// A pool dropped without `close` still frees its server-side envs when a
+    /// tokio runtime is around to send the Close calls.
+    fn drop(&mut self) {
+        let open: Vec<_> = self
+            .groups
+            .iter()
+            .flat_map(|g| {
+                g.shards
+                    .iter()
+                    .map(|s| (s.client().clone(), s.handle().to_owned()))
+            })
+            .collect();
+        if open.is_empty() {
+            return;
+        }
+        if let Ok(rt) = tokio::runtime::Handle::try_current() {
+            rt.spawn(async move {
+                for (client, handle) in open {
+                    if let Err(e) = client.close(&handle).await {
+                        tracing::debug!(%handle, %e, "closing a dropped pool's handle");
+                    }
+                }
+            });
+        }
     }
 }
 

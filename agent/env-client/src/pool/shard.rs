@@ -228,8 +228,12 @@ impl Shard {
         self.deferred_reset = Some(reset);
     }
 
-    pub async fn close(&mut self) -> Result<()> {
-        self.client.close(&self.handle).await
+    pub fn client(&self) -> &EnvClient {
+        &self.client
+    }
+
+    pub fn handle(&self) -> &str {
+        &self.handle
     }
 
     pub fn absent_info(&self, spec: &EnvSpec) -> InfoBatch {

@@ -1,0 +1,220 @@
+//! Runs `million-env-server` processes on this machine: what `million train`
+//! does when no `--env-server` is given, and what the integration tests use.
+//!
+//! A server is started on port 0 and reports the port it got on its first
+//! stdout line (`listening on HOST:PORT`), so concurrent starts never race for a
+//! port. It is ready once grpc.health answers SERVING, and killed when dropped.
+
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::process::{Child, Command};
+use tonic_health::pb::health_check_response::ServingStatus;
+
+use crate::client::{ClientConfig, EnvClient, RetryPolicy};
+
+/// Why a local server could not be started.
+#[derive(Debug, thiserror::Error)]
+pub enum LocalServerError {
+    #[error(
+        "million-env-server not found (looked for {0}); run `make setup`, or set \
+         MILLION_ENV_SERVER to the server's path"
+    )]
+    BinaryMissing(PathBuf),
+    #[error("cannot start {binary}: {source}")]
+    Spawn {
+        binary: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("million-env-server exited before it listened ({0}); its stderr says why")]
+    ExitedEarly(String),
+    #[error("million-env-server on {addr} was not healthy within {waited:?}")]
+    NotReady { addr: String, waited: Duration },
+}
+
+/// Extra arguments for the server process.
+#[derive(Clone, Debug)]
+pub struct LocalServerOptions {
+    pub log_level: String,
+    /// Meta-World benchmarks to build before serving (`--preload`).
+    pub preload: Vec<String>,
+    /// How long to wait for health (a preload of ML45 takes about a minute).
+    pub ready_timeout: Duration,
+}
+
+impl Default for LocalServerOptions {
+    fn default() -> Self {
+        LocalServerOptions {
+            log_level: "WARNING".into(),
+            preload: Vec::new(),
+            ready_timeout: Duration::from_secs(180),
+        }
+    }
+}
+
+/// A running `million-env-server` child process, killed on drop.
+#[derive(Debug)]
+pub struct LocalServer {
+    binary: PathBuf,
+    options: LocalServerOptions,
+    port: u16,
+    addr: String,
+    child: Option<Child>,
+}
+
+/// The server binary: `$MILLION_ENV_SERVER`, else `.venv/bin/million-env-server`
+/// under `$MILLION_ROOT`, under an ancestor of the running executable (the
+/// repository, for `target/release/million`), or under this crate's repository.
+pub fn default_server_binary() -> Result<PathBuf, LocalServerError> {
+    if let Some(path) = std::env::var_os("MILLION_ENV_SERVER") {
+        let path = PathBuf::from(path);
+        return if path.exists() {
+            Ok(path)
+        } else {
+            Err(LocalServerError::BinaryMissing(path))
+        };
+    }
+    let relative = Path::new(".venv/bin/million-env-server");
+    let mut roots: Vec<PathBuf> = Vec::new();
+    if let Some(root) = std::env::var_os("MILLION_ROOT") {
+        roots.push(root.into());
+    }
+    if let Ok(exe) = std::env::current_exe() {
+        roots.extend(exe.ancestors().skip(1).map(Path::to_path_buf));
+    }
+    roots.push(Path::new(env!("CARGO_MANIFEST_DIR")).join("../.."));
+    roots
+        .iter()
+        .map(|root| root.join(relative))
+        .find(|candidate| candidate.exists())
+        .ok_or_else(|| LocalServerError::BinaryMissing(relative.to_path_buf()))
+}
+
+impl LocalServer {
+    /// Starts a server on a free loopback port and waits until it is healthy.
+    pub async fn start(
+        binary: &Path,
+        options: LocalServerOptions,
+    ) -> Result<Self, LocalServerError> {
+        let mut server = LocalServer {
+            binary: binary.to_path_buf(),
+            options,
+            port: 0,
+            addr: String::new(),
+            child: None,
+        };
+        server.launch(0).await?;
+        server.wait_ready().await?;
+        Ok(server)
+    }
+
+    /// Starts `count` servers concurrently (each builds its own benchmarks).
+    pub async fn start_many(
+        binary: &Path,
+        options: LocalServerOptions,
+        count: usize,
+    ) -> Result<Vec<Self>, LocalServerError> {
+        let starts = (0..count).map(|_| LocalServer::start(binary, options.clone()));
+        futures::future::try_join_all(starts).await
+    }
+
+    /// `127.0.0.1:PORT`, as the pool and the client take it.
+    pub fn addr(&self) -> &str {
+        &self.addr
+    }
+
+    pub fn port(&self) -> u16 {
+        self.port
+    }
+
+    /// Kills the process (SIGKILL: its clients get no goodbye, as in a crash).
+    pub async fn kill(&mut self) {
+        if let Some(mut child) = self.child.take() {
+            let _ = child.kill().await;
+        }
+    }
+
+    /// Kills the server and starts a new one on the same port, without waiting
+    /// for it to be healthy (tests of reconnection use this).
+    pub async fn restart(&mut self) -> Result<(), LocalServerError> {
+        self.kill().await;
+        self.launch(self.port).await
+    }
+
+    /// Waits until grpc.health answers SERVING.
+    pub async fn wait_ready(&self) -> Result<(), LocalServerError> {
+        let waited = self.options.ready_timeout;
+        let not_ready = || LocalServerError::NotReady {
+            addr: self.addr.clone(),
+            waited,
+        };
+        let start = Instant::now();
+        let config = ClientConfig {
+            retry: RetryPolicy {
+                max_attempts: u32::MAX,
+                max_elapsed: waited,
+                ..RetryPolicy::default()
+            },
+            ..ClientConfig::default()
+        };
+        let client = EnvClient::connect(&self.addr, config)
+            .await
+            .map_err(|_| not_ready())?;
+        while start.elapsed() < waited {
+            if let Ok(ServingStatus::Serving) = client.health().await {
+                return Ok(());
+            }
+            tokio::time::sleep(Duration::from_millis(100)).await;
+        }
+        Err(not_ready())
+    }
+
+    async fn launch(&mut self, port: u16) -> Result<(), LocalServerError> {
+        let mut command = Command::new(&self.binary);
+        command
+            .args(["--address", &format!("127.0.0.1:{port}")])
+            .args(["--log-level", &self.options.log_level])
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .kill_on_drop(true);
+        for benchmark in &self.options.preload {
+            command.args(["--preload", benchmark]);
+        }
+        let mut child = command.spawn().map_err(|source| LocalServerError::Spawn {
+            binary: self.binary.clone(),
+            source,
+        })?;
+        let stdout = child.stdout.take().expect("stdout is piped");
+        let mut lines = BufReader::new(stdout).lines();
+        let addr = loop {
+            match lines.next_line().await {
+                Ok(Some(line)) => {
+                    if let Some(addr) = line.strip_prefix("listening on ") {
+                        break addr.trim().to_owned();
+                    }
+                }
+                Ok(None) | Err(_) => {
+                    let status = child
+                        .wait()
+                        .await
+                        .map_or_else(|e| e.to_string(), |s| s.to_string());
+                    return Err(LocalServerError::ExitedEarly(status));
+                }
+            }
+        };
+        // Keep draining stdout so the server never blocks on a full pipe.
+        tokio::spawn(async move { while let Ok(Some(_)) = lines.next_line().await {} });
+        self.port = addr
+            .rsplit(':')
+            .next()
+            .and_then(|p| p.parse().ok())
+            .ok_or_else(|| {
+                LocalServerError::ExitedEarly(format!("unparseable address {addr:?}"))
+            })?;
+        self.addr = format!("127.0.0.1:{}", self.port);
+        self.child = Some(child);
+        Ok(())
+    }
+}
