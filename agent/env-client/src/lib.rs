@@ -8,6 +8,29 @@
 //!   as a library, for `million env-check`.
 //! - Typed data: [`Tensor`] (payload kept as `bytes::Bytes`), [`Space`],
 //!   [`EnvSpec`], [`Observation`] / [`Fields`], [`InfoBatch`].
+//!
+//! For an agent, the pool is the whole API:
+//!
+//! ```no_run
+//! # async fn demo() -> million_env::Result<()> {
+//! use million_env::{AutoresetMode, EnvPool, FLAT_FIELD, PoolConfig};
+//! let mut config = PoolConfig::new(vec!["127.0.0.1:50051".into()], "Pendulum-v1", 8);
+//! config.groups = 2; // double buffering: step one group while acting for the other
+//! config.seed = Some(1); // env i gets seed 1 + i, whatever server it lands on
+//! config.autoreset = AutoresetMode::SameStep;
+//! let mut pool = EnvPool::connect(config).await?;
+//! let first = pool.reset_all().await?;
+//! pool.send(0, &vec![0.0f32; 4])?; // group 0: 4 envs x 1 action value
+//! pool.send(1, &vec![0.0f32; 4])?;
+//! let batch = pool.recv(0).await?; // obs of the next step, reward, flags, final_obs
+//! let obs = batch.obs.get(FLAT_FIELD).unwrap();
+//! // Raw little-endian bytes, shape and dtype: e.g. tch::Tensor::from_data_size(
+//! // obs.data(), &shape_i64, Kind::Float) copies once, straight into a tensor.
+//! let (_bytes, _shape) = (obs.data(), obs.shape());
+//! # let _ = first;
+//! pool.close().await
+//! # }
+//! ```
 
 /// Messages and the gRPC client generated from `proto/million/env/v1/env.proto`.
 // The generated code carries the proto's comments verbatim.

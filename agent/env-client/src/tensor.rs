@@ -311,6 +311,19 @@ impl Tensor {
         Self::from_bytes(first.dtype, shape, data.freeze())
     }
 
+    /// The elements of a float32 tensor as a slice of the received payload, with
+    /// no copy, where the payload happens to be 4-byte aligned (None otherwise,
+    /// or for other dtypes; `to_f32_vec` then copies).
+    pub fn as_f32_slice(&self) -> Option<&[f32]> {
+        if self.dtype != DType::Float32 || cfg!(target_endian = "big") {
+            return None;
+        }
+        // SAFETY: every bit pattern is a valid f32, and align_to only yields the
+        // aligned middle part; the payload is little-endian like the host.
+        let (head, body, tail) = unsafe { self.data.align_to::<f32>() };
+        (head.is_empty() && tail.is_empty()).then_some(body)
+    }
+
     /// Every element converted to f64 (strings are an error).
     pub fn to_f64_vec(&self) -> Result<Vec<f64>, String> {
         let d = &self.data[..];
@@ -446,6 +459,23 @@ mod tests {
         assert_eq!(joined.strings(), ["a", "b", "b"]);
         let other = Tensor::from_f32(vec![1, 2], &[0.0, 0.0]).unwrap();
         assert!(Tensor::concat_rows(&[t, other]).is_err());
+    }
+
+    #[test]
+    fn f32_payloads_are_viewed_without_copy_when_aligned() {
+        let t = Tensor::from_f32(vec![2, 2], &[1.0, 2.0, 3.0, 4.0]).unwrap();
+        if let Some(view) = t.as_f32_slice() {
+            assert_eq!(view, &[1.0, 2.0, 3.0, 4.0]);
+            assert_eq!(view.as_ptr() as *const u8, t.data().as_ptr(), "no copy");
+        }
+        let row = t.slice_rows(1..2).unwrap();
+        assert_eq!(row.to_f32_vec().unwrap(), vec![3.0, 4.0]);
+        assert!(
+            Tensor::from_f64(vec![1], &[1.0])
+                .unwrap()
+                .as_f32_slice()
+                .is_none()
+        );
     }
 
     #[test]

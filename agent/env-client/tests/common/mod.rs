@@ -2,9 +2,11 @@
 //! wait for health, kill on drop.
 #![allow(dead_code)] // each test binary uses a different part
 
+use std::io::{BufRead, BufReader};
 use std::net::TcpListener;
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use million_env::{ClientConfig, EnvClient, RetryPolicy};
@@ -33,6 +35,27 @@ pub fn free_port() -> u16 {
         .port()
 }
 
+/// Spawns the server; its "listening on HOST:PORT" line arrives on the channel
+/// (the rest of its stdout is drained so the pipe never fills).
+fn launch(addr: &str) -> (Child, mpsc::Receiver<String>) {
+    let mut child = Command::new(server_binary())
+        .args(["--address", addr, "--log-level", "WARNING"])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .spawn()
+        .expect("million-env-server starts");
+    let stdout = child.stdout.take().expect("piped stdout");
+    let (tx, rx) = mpsc::channel();
+    std::thread::spawn(move || {
+        for line in BufReader::new(stdout).lines().map_while(Result::ok) {
+            if line.starts_with("listening on ") {
+                let _ = tx.send(line);
+            }
+        }
+    });
+    (child, rx)
+}
+
 /// A running `million-env-server`, killed when dropped.
 pub struct Server {
     pub port: u16,
@@ -41,9 +64,29 @@ pub struct Server {
 }
 
 impl Server {
-    /// Starts a server on a free port and waits until it answers.
+    /// Starts a server on a port it picks itself and waits until it answers.
+    /// (Letting the server bind port 0 avoids two parallel tests racing for one
+    /// "free" port; gRPC's SO_REUSEPORT would let both bind it.)
     pub async fn start() -> Server {
-        let server = Server::spawn(free_port());
+        let (mut child, lines) = launch("127.0.0.1:0");
+        let port = tokio::task::spawn_blocking(move || {
+            lines
+                .recv_timeout(Duration::from_secs(120))
+                .ok()
+                .and_then(|line| line.rsplit(':').next()?.trim().parse::<u16>().ok())
+        })
+        .await
+        .unwrap();
+        let Some(port) = port else {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("million-env-server did not report its port");
+        };
+        let server = Server {
+            port,
+            addr: format!("127.0.0.1:{port}"),
+            child: Some(child),
+        };
         server.wait_ready().await;
         server
     }
@@ -51,11 +94,7 @@ impl Server {
     /// Starts a server on `port` without waiting for it.
     pub fn spawn(port: u16) -> Server {
         let addr = format!("127.0.0.1:{port}");
-        let child = Command::new(server_binary())
-            .args(["--address", &addr, "--log-level", "WARNING"])
-            .stdin(Stdio::null())
-            .spawn()
-            .expect("million-env-server starts");
+        let (child, _) = launch(&addr);
         Server {
             port,
             addr,
