@@ -227,26 +227,49 @@ impl Default for OptimConfig {
     }
 }
 
-/// CPU use of libtorch.
+/// CPU use: libtorch threads, local env servers, learner priority.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct RuntimeConfig {
-    /// libtorch intra-op threads (`tch::set_num_threads`); on 2 cores leave one for the envs.
+    /// libtorch intra-op threads (`tch::set_num_threads`) of the actor and of the learner
+    /// thread each; on 2 cores leave one for the envs.
     pub intra_op_threads: usize,
+    /// Local env servers `million train` starts when no `--env-server` is given.
+    pub env_servers: usize,
+    /// Tokio worker threads (gRPC streams of the env pool; acting runs on the main thread).
+    pub io_threads: usize,
+    /// Nice increment of the learner thread (Linux): > 0 lets actors and env servers take
+    /// the CPU first, so a learner never starves them; the replay ratio bounds it anyway.
+    pub learner_nice: i32,
+    /// "cpu", "cuda" or "auto" (CUDA when available) for the learner and the actor.
+    pub device: String,
 }
 
 impl Default for RuntimeConfig {
     fn default() -> Self {
         Self {
             intra_op_threads: 1,
+            env_servers: 1,
+            io_threads: 1,
+            learner_nice: 0,
+            device: "auto".into(),
         }
     }
 }
 
 impl RuntimeConfig {
-    /// Applies the thread setting to libtorch (process-wide).
+    /// Applies the thread setting to libtorch for the calling thread (OpenMP settings are
+    /// per thread: call it in the actor and in the learner thread).
     pub fn apply(&self) {
         tch::set_num_threads(self.intra_op_threads.max(1) as i32);
+    }
+
+    pub fn device(&self) -> tch::Device {
+        match self.device.as_str() {
+            "cpu" => tch::Device::Cpu,
+            "cuda" => tch::Device::Cuda(0),
+            _ => tch::Device::cuda_if_available(),
+        }
     }
 }
 
@@ -324,6 +347,15 @@ impl AgentConfig {
         }
         if self.buffer.min_segments > self.buffer.capacity() {
             return bad("buffer.min_segments exceeds the buffer capacity".into());
+        }
+        if !matches!(self.runtime.device.as_str(), "cpu" | "cuda" | "auto") {
+            return bad(format!(
+                "runtime.device must be \"cpu\", \"cuda\" or \"auto\", got {:?}",
+                self.runtime.device
+            ));
+        }
+        if self.runtime.io_threads == 0 {
+            return bad("runtime.io_threads must be > 0".into());
         }
         if self.optim.lr <= 0.0 {
             return bad("optim.lr must be > 0".into());

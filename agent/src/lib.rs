@@ -18,7 +18,11 @@ pub use million_env as env;
 
 pub mod algo;
 pub mod checkpoint;
+pub mod cli;
 pub mod config;
 pub mod learner;
+pub mod metrics;
 pub mod model;
 pub mod optim;
+pub mod run_config;
+pub mod train;

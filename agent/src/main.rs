@@ -1,21 +1,15 @@
-//! `million`: the MILLION agent's command line. Subcommands are added as the training loop,
-//! evaluation and env checks land.
+//! `million`: train, evaluate, benchmark and check env servers (see `million --help`).
 
 use clap::Parser;
 
-#[derive(Debug, Parser)]
-#[command(name = "million", version, about = "The MILLION meta-RL agent")]
-struct Cli {
-    /// Agent config (TOML) to validate and print.
-    #[arg(long)]
-    check_config: Option<std::path::PathBuf>,
-}
-
-fn main() -> anyhow::Result<()> {
-    let cli = Cli::parse();
-    if let Some(path) = cli.check_config {
-        let cfg = million::config::AgentConfig::from_file(&path)?;
-        println!("{cfg:#?}");
+fn main() -> std::process::ExitCode {
+    million::cli::init_tracing();
+    let cli = million::cli::Cli::parse();
+    match million::cli::run(cli) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
     }
-    Ok(())
 }

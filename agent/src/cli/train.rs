@@ -1,0 +1,90 @@
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use clap::Args;
+
+use crate::run_config::RunConfig;
+use crate::train::session::{TrainOptions, train};
+
+#[derive(Debug, Args)]
+pub struct TrainArgs {
+    /// Run config (TOML), e.g. configs/ml10.toml.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// host:port of an env server (repeatable); none = start local servers.
+    #[arg(long = "env-server")]
+    pub env_servers: Vec<String>,
+    /// Where metrics and checkpoints go (default runs/<config name>).
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+    /// Continue from the newest checkpoint in the run directory.
+    #[arg(long)]
+    pub resume: bool,
+    /// Print the summary as JSON on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
+    let config = RunConfig::from_file(&a.config)?;
+    let run_dir = a.run_dir.unwrap_or_else(|| {
+        PathBuf::from("runs").join(
+            a.config
+                .file_stem()
+                .map_or_else(|| "run".into(), |s| s.to_string_lossy().into_owned()),
+        )
+    });
+    let rt = super::runtime(config.runtime.io_threads)?;
+    let interrupt = Arc::new(AtomicBool::new(false));
+    let summary = rt.block_on(async {
+        let flag = interrupt.clone();
+        tokio::spawn(async move {
+            if tokio::signal::ctrl_c().await.is_ok() {
+                eprintln!("interrupted: finishing the step, writing a final checkpoint");
+                flag.store(true, Ordering::Relaxed);
+            }
+        });
+        train(TrainOptions {
+            config,
+            servers: a.env_servers,
+            run_dir: Some(run_dir.clone()),
+            resume: a.resume,
+            progress: true,
+            max_seconds: None,
+            evaluate: true,
+            interrupt,
+        })
+        .await
+    })?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&summary)?);
+    } else {
+        println!(
+            "{} agent steps in {:.0} s ({:.0} steps/s), {} updates ({:.2}/s); CPU actor {:.0} s, learner {:.0} s",
+            summary.agent_steps,
+            summary.wall_s,
+            summary.agent_steps_per_s,
+            summary.updates,
+            summary.updates_per_s,
+            summary.actor_cpu_s,
+            summary.learner_cpu_s
+        );
+        for r in &summary.final_eval {
+            println!(
+                "eval {}: success {:.3} (first trials {:.3}) over {} trials",
+                r.split, r.mean, r.first_trial, r.trials
+            );
+        }
+        if let Some(p) = &summary.final_checkpoint {
+            println!("checkpoint: {}", p.display());
+        }
+        println!(
+            "metrics: {}/metrics.jsonl (TensorBoard: {})",
+            run_dir.display(),
+            run_dir.display()
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}

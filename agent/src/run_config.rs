@@ -1,0 +1,252 @@
+//! A run config: the agent's sections ([`AgentConfig`]) plus what to train on ([env]), for
+//! how long and how often to evaluate, checkpoint and log ([train]), and where to evaluate
+//! ([eval]). One TOML file; unknown keys are errors.
+
+use std::path::Path;
+
+use million_env::{Kwargs, Value};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{
+    AgentConfig, BufferConfig, ConfigError, ModelConfig, OptimConfig, PopArtConfig, RuntimeConfig,
+    VmpoConfig,
+};
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    pub model: ModelConfig,
+    pub popart: PopArtConfig,
+    pub vmpo: VmpoConfig,
+    pub buffer: BufferConfig,
+    pub optim: OptimConfig,
+    pub runtime: RuntimeConfig,
+    pub env: EnvConfig,
+    pub train: TrainConfig,
+    pub eval: EvalConfig,
+}
+
+/// The training environments.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EnvConfig {
+    pub id: String,
+    /// Keyword arguments of the env (TOML values: bool, int, float, string, arrays, tables).
+    pub kwargs: toml::Table,
+    /// Environments over all servers.
+    pub num_envs: usize,
+    /// Independently stepped groups (2 = acting overlaps env stepping).
+    pub groups: usize,
+    /// Env i is seeded with seed + i.
+    pub seed: u64,
+    /// Seed of the agent's own randomness (weights, action noise, buffer sampling).
+    pub agent_seed: u64,
+    /// Deadline of Make calls in seconds (building ML45 takes about a minute).
+    pub make_timeout_s: u64,
+}
+
+impl Default for EnvConfig {
+    fn default() -> Self {
+        Self {
+            id: "million/ML10-train".into(),
+            kwargs: toml::Table::new(),
+            num_envs: 64,
+            groups: 2,
+            seed: 0,
+            agent_seed: 0,
+            make_timeout_s: 600,
+        }
+    }
+}
+
+/// Budget and intervals, all in agent steps (steps summed over all envs).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TrainConfig {
+    pub total_agent_steps: u64,
+    /// 0 = no evaluation during training.
+    pub eval_interval: u64,
+    /// 0 = only the final checkpoint.
+    pub checkpoint_interval: u64,
+    pub log_interval: u64,
+    /// Stop early once the mean train-split eval success reaches this (> 1 = never).
+    pub stop_at_success: f64,
+}
+
+impl Default for TrainConfig {
+    fn default() -> Self {
+        Self {
+            total_agent_steps: 400_000_000,
+            eval_interval: 5_000_000,
+            checkpoint_interval: 5_000_000,
+            log_interval: 100_000,
+            stop_at_success: 2.0,
+        }
+    }
+}
+
+/// Deterministic evaluation (mean actions).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalConfig {
+    pub train_id: String,
+    pub train_kwargs: toml::Table,
+    /// Empty = no test split.
+    pub test_id: String,
+    pub test_kwargs: toml::Table,
+    /// Episodes per split (one per env, run in one batch).
+    pub episodes: usize,
+    pub seed: u64,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        Self {
+            train_id: "million/ML10-train".into(),
+            train_kwargs: toml::Table::new(),
+            test_id: "million/ML10-test".into(),
+            test_kwargs: toml::Table::new(),
+            episodes: 50,
+            seed: 1_000_000,
+        }
+    }
+}
+
+/// One evaluation split: its name, env id and kwargs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct EvalSplit {
+    pub name: String,
+    pub env_id: String,
+    pub kwargs: Kwargs,
+}
+
+impl RunConfig {
+    pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
+        let cfg: RunConfig = toml::from_str(text)?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::from_toml_str(&text).map_err(|e| match e {
+            ConfigError::Parse(p) => ConfigError::Invalid(format!("{}: {p}", path.display())),
+            ConfigError::Invalid(m) => ConfigError::Invalid(format!("{}: {m}", path.display())),
+            other => other,
+        })
+    }
+
+    /// The agent's sections.
+    pub fn agent(&self) -> AgentConfig {
+        AgentConfig {
+            model: self.model.clone(),
+            popart: self.popart.clone(),
+            vmpo: self.vmpo.clone(),
+            buffer: self.buffer.clone(),
+            optim: self.optim.clone(),
+            runtime: self.runtime.clone(),
+        }
+    }
+
+    pub fn env_kwargs(&self) -> Result<Kwargs, ConfigError> {
+        kwargs_from_toml(&self.env.kwargs, "env.kwargs")
+    }
+
+    /// The configured evaluation splits (train, then test when set).
+    pub fn eval_splits(&self) -> Result<Vec<EvalSplit>, ConfigError> {
+        let mut out = vec![EvalSplit {
+            name: "train".into(),
+            env_id: self.eval.train_id.clone(),
+            kwargs: kwargs_from_toml(&self.eval.train_kwargs, "eval.train_kwargs")?,
+        }];
+        if !self.eval.test_id.is_empty() {
+            out.push(EvalSplit {
+                name: "test".into(),
+                env_id: self.eval.test_id.clone(),
+                kwargs: kwargs_from_toml(&self.eval.test_kwargs, "eval.test_kwargs")?,
+            });
+        }
+        Ok(out)
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        self.agent().validate()?;
+        let bad = |m: String| Err(ConfigError::Invalid(m));
+        if self.env.id.is_empty() || self.eval.train_id.is_empty() {
+            return bad("env.id and eval.train_id must be set".into());
+        }
+        if self.env.num_envs == 0 || self.env.groups == 0 || self.env.groups > self.env.num_envs {
+            return bad(format!(
+                "env: need num_envs >= groups >= 1, got num_envs {} and groups {}",
+                self.env.num_envs, self.env.groups
+            ));
+        }
+        if self.eval.episodes == 0 {
+            return bad("eval.episodes must be > 0".into());
+        }
+        if self.train.log_interval == 0 {
+            return bad("train.log_interval must be > 0".into());
+        }
+        if self.runtime.env_servers == 0 {
+            return bad("runtime.env_servers must be > 0".into());
+        }
+        self.env_kwargs()?;
+        self.eval_splits()?;
+        Ok(())
+    }
+}
+
+fn kwargs_from_toml(table: &toml::Table, what: &str) -> Result<Kwargs, ConfigError> {
+    table
+        .iter()
+        .map(|(k, v)| Ok((k.clone(), value_from_toml(v, &format!("{what}.{k}"))?)))
+        .collect()
+}
+
+fn value_from_toml(v: &toml::Value, what: &str) -> Result<Value, ConfigError> {
+    Ok(match v {
+        toml::Value::Boolean(b) => Value::Bool(*b),
+        toml::Value::Integer(i) => Value::Int(*i),
+        toml::Value::Float(f) => Value::Float(*f),
+        toml::Value::String(s) => Value::String(s.clone()),
+        toml::Value::Array(a) => Value::List(
+            a.iter()
+                .map(|x| value_from_toml(x, what))
+                .collect::<Result<_, _>>()?,
+        ),
+        toml::Value::Table(t) => Value::Map(kwargs_from_toml(t, what)?),
+        toml::Value::Datetime(_) => {
+            return Err(ConfigError::Invalid(format!(
+                "{what}: dates are not env kwargs"
+            )));
+        }
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn kwargs_keep_their_types() {
+        let cfg = RunConfig::from_toml_str(
+            "[env]\nid = \"million/PointGoal\"\nkwargs = { num_goals = 4, instructions = false, time_obs = \"trial\" }\n",
+        )
+        .unwrap();
+        let kw = cfg.env_kwargs().unwrap();
+        assert_eq!(kw["num_goals"], Value::Int(4));
+        assert_eq!(kw["instructions"], Value::Bool(false));
+        assert_eq!(kw["time_obs"], Value::String("trial".into()));
+    }
+
+    #[test]
+    fn bad_sections_are_named() {
+        let err = RunConfig::from_toml_str("[env]\nnum_envs = 1\ngroups = 2\n").unwrap_err();
+        assert!(err.to_string().contains("groups"), "{err}");
+        let err = RunConfig::from_toml_str("[train]\ntotal_steps = 3\n").unwrap_err();
+        assert!(err.to_string().contains("total_steps"), "{err}");
+    }
+}

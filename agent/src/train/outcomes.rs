@@ -1,0 +1,130 @@
+//! Trial outcomes and episode returns read from the pool's step replies.
+//!
+//! Under SAME_STEP autoreset a row that ended carries the next episode's reset info, so the
+//! ending step's `trial_end`/`success` are read from `final_info` for those rows.
+
+use std::collections::BTreeMap;
+
+use million_env::{InfoBatch, StepBatch};
+use serde::Serialize;
+
+/// One finished trial: the task it belonged to and whether it succeeded.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TrialOutcome {
+    pub row: usize,
+    pub task: String,
+    pub success: bool,
+}
+
+fn flag(info: &InfoBatch, name: &str, row: usize) -> bool {
+    info.get(name)
+        .filter(|f| f.present[row])
+        .and_then(|f| f.value.slice_rows(row..row + 1).ok())
+        .and_then(|t| t.to_bool_vec().ok())
+        .is_some_and(|v| v.first().copied().unwrap_or(false))
+}
+
+fn text(info: &InfoBatch, name: &str, row: usize) -> Option<String> {
+    let f = info.get(name).filter(|f| f.present[row])?;
+    f.value.strings().get(row).cloned()
+}
+
+/// The trials that ended at this step.
+pub fn trial_outcomes(step: &StepBatch) -> Vec<TrialOutcome> {
+    let ended = step.ended();
+    (0..step.rows())
+        .filter_map(|row| {
+            let info = match (&step.final_info, ended[row]) {
+                (Some(fi), true) => fi,
+                _ => &step.info,
+            };
+            flag(info, "trial_end", row).then(|| TrialOutcome {
+                row,
+                task: text(info, "task_name", row).unwrap_or_else(|| "unknown".into()),
+                success: flag(info, "success", row),
+            })
+        })
+        .collect()
+}
+
+/// Success counts per task.
+#[derive(Debug, Clone, Default, PartialEq, Serialize)]
+pub struct SuccessTable {
+    /// task → (successful trials, trials)
+    pub tasks: BTreeMap<String, (u64, u64)>,
+}
+
+impl SuccessTable {
+    pub fn record(&mut self, task: &str, success: bool) {
+        let e = self.tasks.entry(task.to_owned()).or_default();
+        e.0 += u64::from(success);
+        e.1 += 1;
+    }
+
+    pub fn trials(&self) -> u64 {
+        self.tasks.values().map(|e| e.1).sum()
+    }
+
+    /// Success rate of each task.
+    pub fn per_task(&self) -> BTreeMap<String, f64> {
+        self.tasks
+            .iter()
+            .map(|(k, (s, n))| (k.clone(), *s as f64 / (*n).max(1) as f64))
+            .collect()
+    }
+
+    /// Mean over tasks of the per-task success rate (NaN with no trials).
+    pub fn mean(&self) -> f64 {
+        if self.tasks.is_empty() {
+            return f64::NAN;
+        }
+        self.per_task().values().sum::<f64>() / self.tasks.len() as f64
+    }
+}
+
+/// Running episode returns per env slot; finished returns are collected until taken.
+#[derive(Debug, Clone)]
+pub struct EpisodeReturns {
+    running: Vec<f64>,
+    finished: Vec<f64>,
+}
+
+impl EpisodeReturns {
+    pub fn new(rows: usize) -> Self {
+        Self {
+            running: vec![0.0; rows],
+            finished: vec![],
+        }
+    }
+
+    pub fn record(&mut self, offset: usize, step: &StepBatch) {
+        for (i, (r, end)) in step.reward.iter().zip(step.ended()).enumerate() {
+            self.running[offset + i] += r;
+            if end {
+                self.finished.push(self.running[offset + i]);
+                self.running[offset + i] = 0.0;
+            }
+        }
+    }
+
+    pub fn take_finished(&mut self) -> Vec<f64> {
+        std::mem::take(&mut self.finished)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn success_table_means_over_tasks() {
+        let mut t = SuccessTable::default();
+        t.record("a", true);
+        t.record("a", false);
+        t.record("b", true);
+        assert_eq!(t.trials(), 3);
+        assert_eq!(t.per_task()["a"], 0.5);
+        assert!((t.mean() - 0.75).abs() < 1e-12);
+        assert!(SuccessTable::default().mean().is_nan());
+    }
+}

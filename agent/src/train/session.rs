@@ -1,0 +1,444 @@
+//! One training run: env servers (local or given), the env pool with G groups, the actor loop
+//! on this thread (gRPC streams on tokio workers), the learner on its own thread, periodic
+//! logs, evaluation and checkpoints, and a summary at the end.
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, mpsc};
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use million_env::{AutoresetMode, EnvPool, LocalServer, PoolConfig};
+use serde::Serialize;
+use tch::nn::VarStore;
+
+use crate::algo::buffer::SegmentBuffer;
+use crate::checkpoint;
+use crate::learner::Learner;
+use crate::metrics::{MetricsWriter, Scalars};
+use crate::model::Model;
+use crate::run_config::RunConfig;
+use crate::train::actor::{ActionBounds, GroupActor};
+use crate::train::eval::{EvalReport, Evaluator};
+use crate::train::learner_loop::{LearnerThreadArgs, Shared, run_learner};
+use crate::train::outcomes::{EpisodeReturns, SuccessTable, trial_outcomes};
+use crate::train::servers::{client_config, start_local_servers};
+use crate::train::weights::thread_cpu_seconds;
+
+/// Metadata key under which checkpoints keep the full run config (TOML).
+pub const RUN_CONFIG_KEY: &str = "run_config";
+
+pub struct TrainOptions {
+    pub config: RunConfig,
+    /// Env servers to use; empty = start `runtime.env_servers` local ones.
+    pub servers: Vec<String>,
+    /// Metrics and checkpoints go here; None = nothing written (benchmarks).
+    pub run_dir: Option<PathBuf>,
+    pub resume: bool,
+    pub progress: bool,
+    /// Stop after this much wall time (benchmarks), besides the step budget.
+    pub max_seconds: Option<f64>,
+    /// Periodic and final evaluation.
+    pub evaluate: bool,
+    /// Set (e.g. by Ctrl-C) to stop cleanly with a final checkpoint.
+    pub interrupt: Arc<AtomicBool>,
+}
+
+/// One point of the learning curve.
+#[derive(Debug, Clone, Serialize)]
+pub struct CurvePoint {
+    pub agent_steps: u64,
+    pub wall_s: f64,
+    pub split: String,
+    pub success: f64,
+    pub first_trial: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainSummary {
+    pub agent_steps: u64,
+    pub updates: u64,
+    pub wall_s: f64,
+    pub agent_steps_per_s: f64,
+    pub updates_per_s: f64,
+    pub actor_cpu_s: f64,
+    pub learner_cpu_s: f64,
+    pub replay_ratio: f64,
+    pub curve: Vec<CurvePoint>,
+    pub final_eval: Vec<EvalReport>,
+    pub final_checkpoint: Option<PathBuf>,
+}
+
+/// `run_dir/checkpoints/step-<agent steps>.safetensors`
+pub fn checkpoint_path(run_dir: &Path, agent_steps: u64) -> PathBuf {
+    run_dir
+        .join("checkpoints")
+        .join(format!("step-{agent_steps:015}.safetensors"))
+}
+
+/// The newest checkpoint of a run directory (or `path` itself when it is a file).
+pub fn latest_checkpoint(path: &Path) -> anyhow::Result<PathBuf> {
+    if path.is_file() {
+        return Ok(path.to_owned());
+    }
+    let dir = path.join("checkpoints");
+    let mut found: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .with_context(|| format!("no checkpoints in {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            p.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with("step-") && n.ends_with(".safetensors"))
+        })
+        .collect();
+    found.sort();
+    found
+        .pop()
+        .with_context(|| format!("no checkpoint files in {}", dir.display()))
+}
+
+struct Intervals {
+    next_log: u64,
+    next_eval: u64,
+    next_ckpt: u64,
+}
+
+fn next_multiple(now: u64, every: u64) -> u64 {
+    if every == 0 {
+        u64::MAX
+    } else {
+        (now / every + 1) * every
+    }
+}
+
+pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
+    let cfg = opts.config.clone();
+    let agent_cfg = cfg.agent();
+    agent_cfg.runtime.apply();
+    tch::manual_seed(cfg.env.agent_seed as i64);
+    let device = cfg.runtime.device();
+
+    let (_local_servers, servers): (Vec<LocalServer>, Vec<String>) = if opts.servers.is_empty() {
+        let local = start_local_servers(cfg.runtime.env_servers).await?;
+        let addrs = local.iter().map(|s| s.addr().to_owned()).collect();
+        (local, addrs)
+    } else {
+        (vec![], opts.servers.clone())
+    };
+
+    let mut learner = Learner::new(agent_cfg.clone(), device);
+    let mut buffer = SegmentBuffer::new(&agent_cfg.buffer);
+    let mut agent_steps = 0u64;
+    if opts.resume {
+        let dir = opts
+            .run_dir
+            .as_ref()
+            .context("--resume needs a run directory")?;
+        let path = latest_checkpoint(dir)?;
+        let meta = checkpoint::load(&path, &mut learner)
+            .with_context(|| format!("resuming from {}", path.display()))?;
+        agent_steps = meta.counters.agent_steps;
+        buffer.restore_counters(meta.counters.buffer);
+        tracing::info!(checkpoint = %path.display(), agent_steps, updates = learner.updates(), "resumed");
+    }
+    let mut actor_vs = VarStore::new(device);
+    let model = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
+    learner
+        .copy_weights_to(&mut actor_vs)
+        .context("initial actor weights")?;
+
+    let client = client_config(&cfg);
+    let mut pool_cfg = PoolConfig::new(servers.clone(), cfg.env.id.clone(), cfg.env.num_envs);
+    pool_cfg.kwargs = cfg.env_kwargs()?;
+    pool_cfg.groups = cfg.env.groups;
+    pool_cfg.seed = Some(cfg.env.seed.wrapping_add(agent_steps));
+    pool_cfg.autoreset = AutoresetMode::SameStep;
+    pool_cfg.client = client.clone();
+    let mut pool = EnvPool::connect(pool_cfg)
+        .await
+        .with_context(|| format!("env pool for {} on {}", cfg.env.id, servers.join(", ")))?;
+    let bounds = ActionBounds::from_space(&pool.spec().action_space, cfg.model.action_dim)?;
+    let mut evaluators = vec![];
+    if opts.evaluate {
+        for split in cfg.eval_splits()? {
+            evaluators.push(
+                Evaluator::connect(
+                    &servers,
+                    split,
+                    cfg.eval.episodes,
+                    cfg.eval.seed,
+                    client.clone(),
+                    cfg.model.action_dim,
+                )
+                .await?,
+            );
+        }
+    }
+    let mut metrics = match &opts.run_dir {
+        Some(dir) => {
+            std::fs::create_dir_all(dir.join("checkpoints"))
+                .with_context(|| format!("creating {}", dir.display()))?;
+            std::fs::write(dir.join("config.toml"), toml::to_string(&cfg)?)?;
+            Some(MetricsWriter::open(dir)?)
+        }
+        None => None,
+    };
+
+    let mut extra = HashMap::new();
+    extra.insert(RUN_CONFIG_KEY.to_owned(), toml::to_string(&cfg)?);
+    let shared = Arc::new(Shared::default());
+    shared.agent_steps.store(agent_steps, Ordering::Relaxed);
+    let (tx, rx) = mpsc::channel();
+    let learner_handle = {
+        let shared = shared.clone();
+        let args = LearnerThreadArgs {
+            learner,
+            buffer,
+            segments: rx,
+            shared,
+            seed: cfg.env.agent_seed,
+            extra_meta: extra.clone(),
+        };
+        std::thread::Builder::new()
+            .name("learner".into())
+            .spawn(move || run_learner(args))
+            .context("starting the learner thread")?
+    };
+
+    let bar = if opts.progress {
+        let bar = ProgressBar::new(cfg.train.total_agent_steps);
+        bar.set_style(
+            ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps  {msg}  ETA {eta}",
+            )
+            .expect("progress template")
+            .progress_chars("=> "),
+        );
+        bar.set_position(agent_steps);
+        bar
+    } else {
+        ProgressBar::hidden()
+    };
+
+    let start = Instant::now();
+    let start_steps = agent_steps;
+    let cpu_start = thread_cpu_seconds();
+    let mut curve = vec![];
+    let mut iv = Intervals {
+        next_log: next_multiple(agent_steps, cfg.train.log_interval),
+        next_eval: next_multiple(agent_steps, cfg.train.eval_interval),
+        next_ckpt: next_multiple(agent_steps, cfg.train.checkpoint_interval),
+    };
+    let mut window = SuccessTable::default();
+    let mut returns = EpisodeReturns::new(pool.num_envs());
+    let mut last_log = (Instant::now(), agent_steps, 0u64);
+    let mut weights_version = 0u64;
+    let mut groups: Vec<GroupActor> = (0..pool.num_groups())
+        .map(|g| GroupActor::new(&model, &pool, g))
+        .collect();
+    let result: anyhow::Result<()> = async {
+        for reset in pool.reset_all().await? {
+            groups[reset.group].observe_reset(&model, &reset.obs)?;
+        }
+        for g in groups.iter_mut() {
+            g.act_and_send(&model, &mut pool, &bounds, false)?;
+        }
+        let mut stop_reason = None;
+        while stop_reason.is_none() {
+            for gi in 0..groups.len() {
+                if gi == 0 && groups[0].segment_step() == 0 {
+                    weights_version = shared.weights.refresh(weights_version, &mut actor_vs);
+                }
+                let step = pool.recv(gi).await?;
+                let g = &mut groups[gi];
+                if let Some(batch) = g.observe_step(&model, &step, true)? {
+                    tx.send(batch)
+                        .map_err(|_| anyhow::anyhow!("the learner thread stopped"))?;
+                }
+                for t in trial_outcomes(&step) {
+                    window.record(&t.task, t.success);
+                }
+                returns.record(g.offset, &step);
+                agent_steps += step.rows() as u64;
+                g.act_and_send(&model, &mut pool, &bounds, false)?;
+            }
+            shared.agent_steps.store(agent_steps, Ordering::Relaxed);
+            bar.set_position(agent_steps);
+
+            let elapsed = start.elapsed().as_secs_f64();
+            if agent_steps >= iv.next_log {
+                iv.next_log = next_multiple(agent_steps, cfg.train.log_interval);
+                let progress = shared.progress.lock().expect("lock").clone();
+                let dt = last_log.0.elapsed().as_secs_f64().max(1e-9);
+                let sps = (agent_steps - last_log.1) as f64 / dt;
+                let ups = (progress.updates - last_log.2) as f64 / dt;
+                last_log = (Instant::now(), agent_steps, progress.updates);
+                let finished = returns.take_finished();
+                let mut s = Scalars::new();
+                s.insert("train/agent_steps_per_s".into(), sps);
+                s.insert("train/updates".into(), progress.updates as f64);
+                s.insert("train/updates_per_s".into(), ups);
+                s.insert("train/replay_ratio".into(), progress.replay_ratio);
+                s.insert("train/buffer_segments".into(), progress.buffer_len as f64);
+                s.insert("cpu/actor_s".into(), thread_cpu_seconds() - cpu_start);
+                s.insert("cpu/learner_s".into(), progress.cpu_seconds);
+                if window.trials() > 0 {
+                    s.insert("train/success".into(), window.mean());
+                }
+                if !finished.is_empty() {
+                    s.insert(
+                        "train/episode_return".into(),
+                        finished.iter().sum::<f64>() / finished.len() as f64,
+                    );
+                }
+                if let Some(m) = &progress.last {
+                    if let Ok(serde_json::Value::Object(map)) = serde_json::to_value(m) {
+                        for (k, v) in map {
+                            if let Some(x) = v.as_f64() {
+                                s.insert(format!("learner/{k}"), x);
+                            }
+                        }
+                    }
+                }
+                bar.set_message(format!(
+                    "{sps:.0} steps/s  {ups:.1} upd/s  train success {:.2}",
+                    window.mean()
+                ));
+                tracing::debug!(agent_steps, ?s, "log");
+                window = SuccessTable::default();
+                if let Some(w) = metrics.as_mut() {
+                    w.write(agent_steps, &s)?;
+                }
+            }
+            if agent_steps >= iv.next_eval && !evaluators.is_empty() {
+                iv.next_eval = next_multiple(agent_steps, cfg.train.eval_interval);
+                let mut s = Scalars::new();
+                for ev in evaluators.iter_mut() {
+                    let r = ev.run(&model).await?;
+                    record_eval(&mut s, &r);
+                    curve.push(CurvePoint {
+                        agent_steps,
+                        wall_s: start.elapsed().as_secs_f64(),
+                        split: r.split.clone(),
+                        success: r.mean,
+                        first_trial: r.first_trial,
+                    });
+                    bar.println(format!(
+                        "eval {} at {agent_steps} steps: success {:.3} (first trials {:.3})",
+                        r.split, r.mean, r.first_trial
+                    ));
+                    if r.split == "train" && r.mean >= cfg.train.stop_at_success {
+                        stop_reason = Some("target success reached");
+                    }
+                }
+                if let Some(w) = metrics.as_mut() {
+                    w.write(agent_steps, &s)?;
+                }
+            }
+            if agent_steps >= iv.next_ckpt {
+                iv.next_ckpt = next_multiple(agent_steps, cfg.train.checkpoint_interval);
+                if let Some(dir) = &opts.run_dir {
+                    *shared.checkpoint_request.lock().expect("lock") =
+                        Some(checkpoint_path(dir, agent_steps));
+                }
+            }
+            if let Some(e) = shared.checkpoint_error.lock().expect("lock").take() {
+                anyhow::bail!("writing a checkpoint: {e}");
+            }
+            if agent_steps >= cfg.train.total_agent_steps {
+                stop_reason = Some("step budget reached");
+            }
+            if opts.max_seconds.is_some_and(|m| elapsed >= m) {
+                stop_reason = Some("time limit reached");
+            }
+            if opts.interrupt.load(Ordering::Relaxed) {
+                stop_reason = Some("interrupted");
+            }
+        }
+        tracing::info!(
+            reason = stop_reason.unwrap_or(""),
+            agent_steps,
+            "training stops"
+        );
+        for gi in 0..groups.len() {
+            pool.recv(gi).await?;
+        }
+        Ok(())
+    }
+    .await;
+    let actor_cpu_s = thread_cpu_seconds() - cpu_start;
+    let wall_s = start.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    shared.stop.store(true, Ordering::Relaxed);
+    drop(tx);
+    let done = learner_handle
+        .join()
+        .map_err(|_| anyhow::anyhow!("the learner thread panicked"))?;
+    let progress = shared.progress.lock().expect("lock").clone();
+    result?;
+    let updates = done.learner.updates();
+
+    let mut final_checkpoint = None;
+    if let Some(dir) = &opts.run_dir {
+        let path = checkpoint_path(dir, agent_steps);
+        checkpoint::save(
+            &path,
+            &done.learner,
+            agent_steps,
+            done.buffer_counters,
+            &extra,
+        )?;
+        final_checkpoint = Some(path);
+    }
+    let mut final_eval = vec![];
+    if opts.evaluate {
+        // The final evaluation uses the learner's newest weights.
+        done.learner.copy_weights_to(&mut actor_vs)?;
+        let mut s = Scalars::new();
+        for mut ev in evaluators {
+            let r = ev.run(&model).await?;
+            record_eval(&mut s, &r);
+            curve.push(CurvePoint {
+                agent_steps,
+                wall_s: start.elapsed().as_secs_f64(),
+                split: r.split.clone(),
+                success: r.mean,
+                first_trial: r.first_trial,
+            });
+            final_eval.push(r);
+            ev.close().await?;
+        }
+        if let Some(w) = metrics.as_mut() {
+            w.write(agent_steps, &s)?;
+        }
+    }
+    pool.close().await?;
+    let steps = agent_steps - start_steps;
+    Ok(TrainSummary {
+        agent_steps,
+        updates,
+        wall_s,
+        agent_steps_per_s: steps as f64 / wall_s.max(1e-9),
+        updates_per_s: updates as f64 / wall_s.max(1e-9),
+        actor_cpu_s,
+        learner_cpu_s: progress.cpu_seconds,
+        replay_ratio: progress.replay_ratio,
+        curve,
+        final_eval,
+        final_checkpoint,
+    })
+}
+
+fn record_eval(s: &mut Scalars, r: &EvalReport) {
+    s.insert(format!("eval/{}/success", r.split), r.mean);
+    s.insert(
+        format!("eval/{}/first_trial_success", r.split),
+        r.first_trial,
+    );
+    s.insert(format!("eval/{}/episode_return", r.split), r.mean_return);
+    for (task, v) in &r.per_task {
+        s.insert(format!("eval/{}/task/{task}", r.split), *v);
+    }
+}
