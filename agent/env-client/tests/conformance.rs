@@ -4,12 +4,13 @@ mod common;
 
 use common::{Server, init_tracing};
 use million_env::conformance::{IMPLEMENTED, Status, listed_checks};
-use million_env::{Kwargs, Value, run_conformance};
+use million_env::{AutoresetMode, ClientConfig, EnvClient, Kwargs, Space, Value, run_conformance};
 
-async fn passes(env_id: &str, kwargs: Kwargs) {
+/// Runs env-check and asserts it passes; returns the env's observation space.
+async fn passes(env_id: &str, kwargs: Kwargs) -> Space {
     init_tracing();
     let server = Server::start().await;
-    let report = run_conformance(&server.addr, env_id, kwargs).await;
+    let report = run_conformance(&server.addr, env_id, kwargs.clone()).await;
     println!("{report}");
     let ran: Vec<&str> = report.results.iter().map(|r| r.id.as_str()).collect();
     assert_eq!(ran.len(), listed_checks().len(), "every listed check ran");
@@ -29,11 +30,21 @@ async fn passes(env_id: &str, kwargs: Kwargs) {
     }
     let json: serde_json::Value = serde_json::from_str(&report.to_json()).unwrap();
     assert_eq!(json["env_id"], env_id);
+    let client = EnvClient::connect(&server.addr, ClientConfig::default())
+        .await
+        .unwrap();
+    let (handle, spec) = client
+        .make(env_id, &kwargs, 1, AutoresetMode::SameStep)
+        .await
+        .unwrap();
+    client.close(&handle).await.unwrap();
+    spec.observation_space
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn pendulum_conforms() {
-    passes("Pendulum-v1", Kwargs::new()).await;
+    let space = passes("Pendulum-v1", Kwargs::new()).await;
+    assert!(matches!(space, Space::Box(_)));
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -48,6 +59,16 @@ async fn metaworld_reach_conforms() {
     // Meta-World's own id draws its goal set at construction; the seed kwarg fixes it.
     kwargs.insert("seed".into(), Value::Int(1));
     passes("Meta-World/MT1", kwargs).await;
+}
+
+/// A MILLION protocol env: Dict observations (state, instruction words, time...).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn million_pointgoal_with_dict_observations_conforms() {
+    let space = passes("million/PointGoal", Kwargs::new()).await;
+    assert!(
+        matches!(space, Space::Dict(_)),
+        "PointGoal observes a Dict: {space}"
+    );
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
