@@ -1,0 +1,91 @@
+//! Every run config shipped in configs/ parses, validates, and builds a model of its sizes.
+
+use std::path::{Path, PathBuf};
+
+use million::run_config::RunConfig;
+
+fn config_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).expect("configs/ exists") {
+        let path = entry.expect("dir entry").path();
+        if path.is_dir() {
+            config_files(&path, out);
+        } else if path.extension().is_some_and(|e| e == "toml") {
+            out.push(path);
+        }
+    }
+}
+
+fn configs_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs")
+}
+
+#[test]
+fn every_shipped_config_is_valid() {
+    let mut files = vec![];
+    config_files(&configs_dir(), &mut files);
+    files.sort();
+    let names: Vec<String> = files
+        .iter()
+        .map(|p| p.strip_prefix(configs_dir()).unwrap().display().to_string())
+        .collect();
+    for required in [
+        "ml10.toml",
+        "ml45.toml",
+        "ml1-reach.toml",
+        "quickstart.toml",
+        "ablations/no-popart.toml",
+        "ablations/no-instructions.toml",
+        "ablations/full-time-obs.toml",
+    ] {
+        assert!(names.iter().any(|n| n == required), "{required} missing: {names:?}");
+    }
+    for path in &files {
+        let cfg = RunConfig::from_file(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        // The sizes build a working model: one acting step gives actions of the right shape.
+        let vs = tch::nn::VarStore::new(tch::Device::Cpu);
+        let model = million::model::Model::new(&vs.root(), &cfg.model, &cfg.popart);
+        let mut state = model.acting_state(2);
+        let obs = tch::Tensor::zeros([2, cfg.model.obs_dim() as i64], tch::kind::FLOAT_CPU);
+        let out = model.act(&mut state, &obs, &tch::Tensor::from_slice(&[true, true]));
+        assert_eq!(out.mean.size(), [2, cfg.model.action_dim as i64], "{}", path.display());
+        assert!(!cfg.eval_splits().unwrap().is_empty());
+    }
+}
+
+#[test]
+fn ml10_holds_the_paper_defaults_and_ablations_differ_where_they_should() {
+    let load = |name: &str| RunConfig::from_file(&configs_dir().join(name)).unwrap();
+    let ml10 = load("ml10.toml");
+    assert_eq!(ml10.agent(), {
+        let mut d = million::config::AgentConfig::default();
+        d.runtime = ml10.runtime.clone();
+        d
+    });
+    assert_eq!(ml10.env.id, "million/ML10-train");
+    assert_eq!(ml10.train.total_agent_steps, 400_000_000);
+    assert!(!load("ablations/no-popart.toml").popart.enabled);
+    let noi = load("ablations/no-instructions.toml");
+    assert_eq!(
+        noi.env_kwargs().unwrap()["instructions"],
+        million::env::Value::Bool(false)
+    );
+    assert_eq!(noi.model.observation.last().unwrap().key, "prev_reward");
+    let ft = load("ablations/full-time-obs.toml");
+    assert_eq!(
+        ft.env_kwargs().unwrap()["time_obs"],
+        million::env::Value::String("episode".into())
+    );
+}
+
+#[test]
+fn a_bad_config_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.toml");
+    std::fs::write(&path, "[env]\nnum_env = 3\n").unwrap();
+    let err = RunConfig::from_file(&path).unwrap_err().to_string();
+    assert!(err.contains("bad.toml") && err.contains("num_env"), "{err}");
+    let err = RunConfig::from_file(&dir.path().join("missing.toml"))
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("missing.toml"), "{err}");
+}
