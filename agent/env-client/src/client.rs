@@ -28,7 +28,9 @@ pub struct Timeouts {
     pub connect: Duration,
     /// Handshake, ListEnvs, Close, GetStats, health.
     pub call: Duration,
-    /// Make: building simulators (Meta-World, GloVe loading) can take seconds.
+    /// Make: building simulators can take long (a server's first Meta-World
+    /// ML45 Make builds the benchmark, about a minute; the bundled server asks
+    /// clients to allow ten).
     pub make: Duration,
     /// Reset and Step, unary or one reply on the Session stream.
     pub step: Duration,
@@ -39,7 +41,7 @@ impl Default for Timeouts {
         Timeouts {
             connect: Duration::from_secs(5),
             call: Duration::from_secs(10),
-            make: Duration::from_secs(120),
+            make: Duration::from_secs(600),
             step: Duration::from_secs(60),
         }
     }

@@ -227,6 +227,10 @@ async fn bad_input_gets_status_codes_and_clear_errors() {
     );
     pool.send(0, &[0.5f32, -0.5][..]).unwrap();
     refused(pool.send(0, &[0.5f32, -0.5][..]), "in flight");
+    assert!(
+        matches!(pool.reset_all().await, Err(EnvError::InvalidInput(m)) if m.contains("in flight")),
+        "no reset while a step is in flight"
+    );
     let b = pool.recv(0).await.unwrap();
     assert_eq!(b.rows(), 2);
     pool.close().await.unwrap();

@@ -287,6 +287,16 @@ impl EnvPool {
 
     /// Resets every group; one batch per group.
     pub async fn reset_all(&mut self) -> Result<Vec<ResetBatch>> {
+        // Refuse before sending anything, so no group is left half-reset.
+        if let Some(g) = self
+            .groups
+            .iter()
+            .position(|g| matches!(g.state, GroupState::Stepping | GroupState::Resetting))
+        {
+            return Err(EnvError::InvalidInput(format!(
+                "group {g} has a request in flight; recv it before resetting"
+            )));
+        }
         for g in 0..self.groups.len() {
             self.send_reset(g)?;
         }
