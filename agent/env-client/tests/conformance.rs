@@ -2,15 +2,15 @@
 //! server, for a Box-action env, a Discrete-action env and a Meta-World env.
 mod common;
 
-use common::{Server, init_tracing};
+use common::init_tracing;
 use million_env::conformance::{IMPLEMENTED, Status, listed_checks};
 use million_env::{AutoresetMode, ClientConfig, EnvClient, Kwargs, Space, Value, run_conformance};
 
 /// Runs env-check and asserts it passes; returns the env's observation space.
 async fn passes(env_id: &str, kwargs: Kwargs) -> Space {
     init_tracing();
-    let server = Server::start().await;
-    let report = run_conformance(&server.addr, env_id, kwargs.clone()).await;
+    let server = common::start_server().await;
+    let report = run_conformance(server.addr(), env_id, kwargs.clone()).await;
     println!("{report}");
     let ran: Vec<&str> = report.results.iter().map(|r| r.id.as_str()).collect();
     assert_eq!(ran.len(), listed_checks().len(), "every listed check ran");
@@ -30,7 +30,7 @@ async fn passes(env_id: &str, kwargs: Kwargs) -> Space {
     }
     let json: serde_json::Value = serde_json::from_str(&report.to_json()).unwrap();
     assert_eq!(json["env_id"], env_id);
-    let client = EnvClient::connect(&server.addr, ClientConfig::default())
+    let client = EnvClient::connect(server.addr(), ClientConfig::default())
         .await
         .unwrap();
     let (handle, spec) = client

@@ -10,7 +10,7 @@ use million_env::{
 
 fn reach(servers: &[&Server], groups: usize) -> PoolConfig {
     let mut c = PoolConfig::new(
-        servers.iter().map(|s| s.addr.clone()).collect(),
+        servers.iter().map(|s| s.addr().to_owned()).collect(),
         "Meta-World/MT1",
         4,
     );
@@ -58,7 +58,7 @@ fn check(b: &StepBatch, low: &[f64], high: &[f64]) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn reach_batches_are_typed_and_reproducible_over_one_or_two_servers() {
     init_tracing();
-    let (a, b) = tokio::join!(Server::start(), Server::start());
+    let (a, b) = tokio::join!(common::start_server(), common::start_server());
     let (one, two) = tokio::join!(
         EnvPool::connect(reach(&[&a], 1)),
         EnvPool::connect(reach(&[&a, &b], 2))

@@ -14,7 +14,7 @@ use tonic::Code;
 
 fn config(servers: &[&Server], num_envs: usize, groups: usize, seed: u64) -> PoolConfig {
     let mut c = PoolConfig::new(
-        servers.iter().map(|s| s.addr.clone()).collect(),
+        servers.iter().map(|s| s.addr().to_owned()).collect(),
         "Pendulum-v1",
         num_envs,
     );
@@ -26,7 +26,7 @@ fn config(servers: &[&Server], num_envs: usize, groups: usize, seed: u64) -> Poo
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn double_buffered_groups_have_batch_shapes_and_truncate_at_the_limit() {
     init_tracing();
-    let server = Server::start().await;
+    let server = common::start_server().await;
     let mut pool = EnvPool::connect(config(&[&server], 6, 2, 7)).await.unwrap();
     let spec = pool.spec().clone();
     assert_eq!(spec.num_envs, 6);
@@ -139,7 +139,7 @@ async fn trajectory(pool: &mut EnvPool, steps: usize) -> (Vec<Vec<u8>>, Vec<Vec<
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn seeds_decide_trajectories_whatever_the_server_count() {
     init_tracing();
-    let (a, b) = tokio::join!(Server::start(), Server::start());
+    let (a, b) = tokio::join!(common::start_server(), common::start_server());
     let mut one = EnvPool::connect(config(&[&a], 5, 1, 11)).await.unwrap();
     let mut two = EnvPool::connect(config(&[&a, &b], 5, 2, 11)).await.unwrap();
     let mut other_seed = EnvPool::connect(config(&[&b], 5, 1, 12)).await.unwrap();
@@ -164,8 +164,8 @@ fn code<T>(r: Result<T, EnvError>) -> Option<Code> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn bad_input_gets_status_codes_and_clear_errors() {
     init_tracing();
-    let server = Server::start().await;
-    let client = EnvClient::connect(&server.addr, ClientConfig::default())
+    let server = common::start_server().await;
+    let client = EnvClient::connect(server.addr(), ClientConfig::default())
         .await
         .unwrap();
 
@@ -259,12 +259,12 @@ async fn bad_input_gets_status_codes_and_clear_errors() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn version_mismatch_and_unreachable_servers_are_clear_errors() {
     init_tracing();
-    let server = Server::start().await;
+    let server = common::start_server().await;
     let newer = ClientConfig {
         api_version: (2, 0),
         ..ClientConfig::default()
     };
-    match EnvClient::connect(&server.addr, newer).await {
+    match EnvClient::connect(server.addr(), newer).await {
         Err(e @ EnvError::VersionMismatch { .. }) => {
             let msg = e.to_string();
             assert!(
@@ -285,7 +285,11 @@ async fn version_mismatch_and_unreachable_servers_are_clear_errors() {
         },
         ..ClientConfig::default()
     };
-    let mut c = PoolConfig::new(vec![server.addr.clone(), nobody.clone()], "Pendulum-v1", 2);
+    let mut c = PoolConfig::new(
+        vec![server.addr().to_owned(), nobody.clone()],
+        "Pendulum-v1",
+        2,
+    );
     c.client = quick;
     match EnvPool::connect(c).await {
         Err(e @ EnvError::Unreachable { attempts: 4, .. }) => {
@@ -298,8 +302,8 @@ async fn version_mismatch_and_unreachable_servers_are_clear_errors() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn closing_or_dropping_a_pool_frees_its_envs() {
     init_tracing();
-    let server = Server::start().await;
-    let client = EnvClient::connect(&server.addr, ClientConfig::default())
+    let server = common::start_server().await;
+    let client = EnvClient::connect(server.addr(), ClientConfig::default())
         .await
         .unwrap();
     let alive = async || client.stats().await.unwrap()["envs_alive"];

@@ -5,7 +5,7 @@ mod common;
 
 use std::time::Duration;
 
-use common::{Server, init_tracing};
+use common::init_tracing;
 use million_env::{
     ActionSampler, AutoresetMode, EnvPool, FLAT_FIELD, PoolConfig, RetryPolicy, StepBatch, Tensor,
 };
@@ -42,9 +42,9 @@ async fn step_all(pool: &mut EnvPool, sampler: &mut ActionSampler) -> Vec<StepBa
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn restarted_server_cuts_its_episodes_and_the_pool_goes_on() {
     init_tracing();
-    let (a, mut b) = tokio::join!(Server::start(), Server::start());
+    let (a, mut b) = tokio::join!(common::start_server(), common::start_server());
     let mut pool = EnvPool::connect(patient_config(
-        vec![a.addr.clone(), b.addr.clone()],
+        vec![a.addr().to_owned(), b.addr().to_owned()],
         AutoresetMode::SameStep,
     ))
     .await
@@ -56,7 +56,7 @@ async fn restarted_server_cuts_its_episodes_and_the_pool_goes_on() {
     for _ in 0..5 {
         last = step_all(&mut pool, &mut sampler).await;
     }
-    b.restart();
+    b.restart().await.expect("server restarts");
 
     let after = step_all(&mut pool, &mut sampler).await;
     // Row (group, index) of each env on b, and of each env on a.
@@ -114,9 +114,9 @@ async fn restarted_server_cuts_its_episodes_and_the_pool_goes_on() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn next_step_mode_shows_the_cut_then_the_reset() {
     init_tracing();
-    let mut server = Server::start().await;
+    let mut server = common::start_server().await;
     let mut pool = EnvPool::connect(patient_config(
-        vec![server.addr.clone()],
+        vec![server.addr().to_owned()],
         AutoresetMode::NextStep,
     ))
     .await
@@ -124,7 +124,7 @@ async fn next_step_mode_shows_the_cut_then_the_reset() {
     let mut sampler = ActionSampler::new(&pool.spec().action_space, 4).unwrap();
     pool.reset_all().await.unwrap();
     let last = step_all(&mut pool, &mut sampler).await;
-    server.restart();
+    server.restart().await.expect("server restarts");
     let cut = step_all(&mut pool, &mut sampler).await;
     let reset = step_all(&mut pool, &mut sampler).await;
     for g in 0..2 {
