@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import grpc
 import numpy as np
 import pytest
@@ -74,5 +76,40 @@ def test_limits_are_enforced_by_the_running_server() -> None:
             stats = stub.GetStats(env_pb2.GetStatsRequest()).counters
             assert stats["envs_alive"] == 2 and stats["steps_served"] == 2
             assert "unknown_words" in stats  # the MILLION protocol's counters are merged in
+    finally:
+        stop_server(process)
+
+
+def test_idle_handles_are_closed_and_busy_ones_kept() -> None:
+    """A client that dies without Close must not hold its envs for ever."""
+    assert parse_args([]).handle_idle_timeout > 0
+    with pytest.raises(SystemExit):
+        parse_args(["--handle-idle-timeout", "-1"])
+    process, address = start_server("--handle-idle-timeout", "1")
+    try:
+        with grpc.insecure_channel(address) as channel:
+            stub = env_pb2_grpc.EnvServiceStub(channel)
+
+            def make() -> str:
+                handle = stub.Make(
+                    env_pb2.MakeRequest(env_id="Pendulum-v1", num_envs=1), timeout=30
+                ).handle
+                stub.Reset(env_pb2.ResetRequest(handle=handle), timeout=30)
+                return handle
+
+            abandoned, busy = make(), make()
+            action = encode_tensor(np.zeros((1, 1), dtype=np.float32))
+            for _ in range(8):  # 2.4 s of calls on `busy` only
+                stub.Step(env_pb2.StepRequest(handle=busy, action=action), timeout=30)
+                time.sleep(0.3)
+
+            stub.Step(env_pb2.StepRequest(handle=busy, action=action), timeout=30)
+            with pytest.raises(grpc.RpcError) as err:
+                stub.Step(env_pb2.StepRequest(handle=abandoned, action=action), timeout=30)
+            assert err.value.code() == grpc.StatusCode.NOT_FOUND
+            assert "without calls" in err.value.details()
+            counters = stub.GetStats(env_pb2.GetStatsRequest(), timeout=30).counters
+            assert counters["handles_closed_idle"] == 1
+            assert counters["envs_alive"] == 1
     finally:
         stop_server(process)

@@ -24,6 +24,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--max-envs-per-handle", type=int, default=defaults.max_envs_per_handle)
     parser.add_argument("--max-envs-total", type=int, default=defaults.max_envs_total)
     parser.add_argument(
+        "--handle-idle-timeout",
+        type=float,
+        default=defaults.handle_idle_timeout_s,
+        metavar="SECONDS",
+        help="close env handles without calls for this long (a client that died); 0 = never",
+    )
+    parser.add_argument(
         "--workers", type=int, default=None, help="threads stepping environments (default: auto)"
     )
     parser.add_argument(
@@ -37,6 +44,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
     )
     args = parser.parse_args(argv)
+    if args.handle_idle_timeout < 0:
+        parser.error("--handle-idle-timeout must be 0 (never) or positive")
     if args.max_envs_per_handle < 1 or args.max_envs_total < 1:
         parser.error("--max-envs-per-handle and --max-envs-total must be at least 1")
     for item in args.preload:
@@ -57,7 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     from million_env.server import serve
 
-    limits = ServerLimits(args.max_envs_per_handle, args.max_envs_total)
+    limits = ServerLimits(args.max_envs_per_handle, args.max_envs_total, args.handle_idle_timeout)
     asyncio.run(serve(args.address, limits, args.workers, args.preload))
 
 

@@ -33,6 +33,14 @@ def preload(benchmarks: list[str]) -> None:
             split_observation_space(name, split, task or None, DEFAULT_BENCHMARK_SEED)
 
 
+async def _close_idle_handles(service: EnvService, timeout_s: float) -> None:
+    if timeout_s <= 0:
+        return
+    while True:
+        await asyncio.sleep(min(timeout_s / 4, 30.0))
+        await service.close_idle()
+
+
 async def serve(
     address: str, limits: ServerLimits, workers: int | None = None, preloads: Sequence[str] = ()
 ) -> None:
@@ -69,8 +77,10 @@ async def serve(
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    reaper = asyncio.create_task(_close_idle_handles(service, limits.handle_idle_timeout_s))
     await stop.wait()
     _LOG.info("shutting down")
+    reaper.cancel()
     await health_servicer.enter_graceful_shutdown()
     await server.stop(grace=2.0)
     await service.close_all()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import secrets
+import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -35,12 +36,16 @@ API_MINOR = 0
 class ServerLimits:
     max_envs_per_handle: int = 256
     max_envs_total: int = 1024
+    # A client that dies without Close would otherwise hold its envs (and the
+    # server's budget) forever; 0 keeps idle handles for ever.
+    handle_idle_timeout_s: float = 900.0
 
 
 @dataclass
 class _Handle:
     batch: EnvBatch
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    last_used: float = field(default_factory=time.monotonic)
 
 
 def _status_number(code: grpc.StatusCode) -> int:
@@ -54,6 +59,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         self._handles: dict[str, _Handle] = {}
         self._envs_reserved = 0
         self._steps_served = 0
+        self._handles_reaped = 0
 
     # -- plumbing -------------------------------------------------------------
 
@@ -74,7 +80,11 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     def _handle(self, name: str) -> _Handle:
         handle = self._handles.get(name)
         if handle is None:
-            raise not_found(f"no env handle {name!r} (never made, or already closed)")
+            raise not_found(
+                f"no env handle {name!r} (never made, closed, or closed after "
+                f"{self._limits.handle_idle_timeout_s:g} s without calls)"
+            )
+        handle.last_used = time.monotonic()
         return handle
 
     # -- operations shared by the unary calls and the stream -------------------
@@ -133,6 +143,23 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         async with handle.lock:
             await self._in_thread(handle.batch.close)
         self._envs_reserved -= handle.batch.num_envs
+
+    async def close_idle(self) -> int:
+        """Closes the handles unused for longer than the idle timeout; returns how many."""
+        timeout = self._limits.handle_idle_timeout_s
+        if timeout <= 0:
+            return 0
+        now = time.monotonic()
+        idle = [
+            name
+            for name, handle in self._handles.items()
+            if now - handle.last_used > timeout and not handle.lock.locked()
+        ]
+        for name in idle:
+            _LOG.warning("closing handle %s… after %.0f s without calls", name[:6], timeout)
+            await self._close(name)
+        self._handles_reaped += len(idle)
+        return len(idle)
 
     async def close_all(self) -> None:
         for name in list(self._handles):
@@ -232,6 +259,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             "envs_alive": float(sum(h.batch.num_envs for h in self._handles.values())),
             "handles_alive": float(len(self._handles)),
             "steps_served": float(self._steps_served),
+            "handles_closed_idle": float(self._handles_reaped),
         }
         counters.update(protocol_stats())
         return env_pb2.GetStatsResponse(counters=counters)
