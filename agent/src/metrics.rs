@@ -126,7 +126,7 @@ impl TensorBoardWriter {
 /// itself contains CRCs is not trivially zero.
 fn masked_crc32c(data: &[u8]) -> u32 {
     let crc = crc32c::crc32c(data);
-    ((crc >> 15) | (crc << 17)).wrapping_add(0xa282_ead8)
+    crc.rotate_right(15).wrapping_add(0xa282_ead8)
 }
 
 fn wall_time() -> f64 {
@@ -195,7 +195,7 @@ mod tests {
         // CRC-32C("123456789") = 0xE3069283, the standard check value; masking it
         // by hand: rotate right 15, add 0xa282ead8.
         let crc: u32 = 0xE306_9283;
-        let expected = ((crc >> 15) | (crc << 17)).wrapping_add(0xa282_ead8);
+        let expected = crc.rotate_right(15).wrapping_add(0xa282_ead8);
         assert_eq!(crc32c::crc32c(b"123456789"), crc);
         assert_eq!(masked_crc32c(b"123456789"), expected);
     }

@@ -106,11 +106,8 @@ struct Intervals {
 }
 
 fn next_multiple(now: u64, every: u64) -> u64 {
-    if every == 0 {
-        u64::MAX
-    } else {
-        (now / every + 1) * every
-    }
+    now.checked_div(every)
+        .map_or(u64::MAX, |k| (k + 1).saturating_mul(every))
 }
 
 pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
@@ -293,12 +290,12 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                         finished.iter().sum::<f64>() / finished.len() as f64,
                     );
                 }
-                if let Some(m) = &progress.last {
-                    if let Ok(serde_json::Value::Object(map)) = serde_json::to_value(m) {
-                        for (k, v) in map {
-                            if let Some(x) = v.as_f64() {
-                                s.insert(format!("learner/{k}"), x);
-                            }
+                if let Some(m) = &progress.last
+                    && let Ok(serde_json::Value::Object(map)) = serde_json::to_value(m)
+                {
+                    for (k, v) in map {
+                        if let Some(x) = v.as_f64() {
+                            s.insert(format!("learner/{k}"), x);
                         }
                     }
                 }
