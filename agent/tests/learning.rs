@@ -76,7 +76,7 @@ fn quickstart_learns_to_follow_instructions_and_the_ablation_does_not() {
         "first trials follow the words: {:.3}",
         train_split.first_trial
     );
-    assert!(train_split.trials >= 32, "{train_split:?}");
+    assert!(train_split.trials >= 64, "{train_split:?}");
     // The held-out sentences name the same goals with unseen templates.
     assert!(
         split(&quick, "test").mean >= 0.6,
@@ -102,14 +102,16 @@ fn quickstart_learns_to_follow_instructions_and_the_ablation_does_not() {
         blind.agent_steps, blind_train.mean, blind_train.first_trial
     );
     assert!(blind.agent_steps >= quick.agent_steps);
-    // Without words the goal of a first trial is a guess among 4 (chance 0.25).
+    // Without words the goal of a first trial is a guess among 4 (chance 0.25; a fixed
+    // direction scores the share of its goal among the eval episodes).
     assert!(
-        blind_train.first_trial < 0.5,
-        "first trials without instructions: {:.3}",
-        blind_train.first_trial
+        blind_train.first_trial < 0.6 && blind_train.first_trial <= train_split.first_trial - 0.3,
+        "first trials without instructions {:.3} vs with {:.3}",
+        blind_train.first_trial,
+        train_split.first_trial
     );
     assert!(
-        blind_train.mean < train_split.mean - 0.15 && blind_train.mean < 0.85,
+        blind_train.mean < 0.6 && blind_train.mean <= train_split.mean - 0.3,
         "without instructions {:.3} vs with {:.3}",
         blind_train.mean,
         train_split.mean
