@@ -140,6 +140,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         buffer.restore_counters(meta.counters.buffer);
         tracing::info!(checkpoint = %path.display(), agent_steps, updates = learner.updates(), "resumed");
     }
+    let start_updates = learner.updates();
     let mut actor_vs = VarStore::new(device);
     let model = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
     learner
@@ -418,7 +419,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         updates,
         wall_s,
         agent_steps_per_s: steps as f64 / wall_s.max(1e-9),
-        updates_per_s: updates as f64 / wall_s.max(1e-9),
+        updates_per_s: (updates - start_updates) as f64 / wall_s.max(1e-9),
         actor_cpu_s,
         learner_cpu_s: progress.cpu_seconds,
         replay_ratio: progress.replay_ratio,
