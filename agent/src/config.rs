@@ -7,7 +7,7 @@ use std::path::Path;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
-    #[error("cannot read config {path}: {source}")]
+    #[error("cannot read config {path}")]
     Read {
         path: String,
         source: std::io::Error,
@@ -249,7 +249,7 @@ impl Default for RuntimeConfig {
     fn default() -> Self {
         Self {
             intra_op_threads: 1,
-            env_servers: 1,
+            env_servers: 2,
             io_threads: 1,
             learner_nice: 0,
             device: "auto".into(),

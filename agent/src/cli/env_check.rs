@@ -8,7 +8,7 @@ pub struct EnvCheckArgs {
     /// host:port of the env server to check.
     #[arg(long = "env-server")]
     pub env_server: String,
-    /// Env id, optionally with kwargs (`ID` or `ID key=value ...`); repeatable.
+    /// Env id, optionally with kwargs as `ID:key=value,key=value` (as pytest tests/contract); repeatable.
     #[arg(long = "env", default_value = "million/PointGoal")]
     pub envs: Vec<String>,
     #[arg(long)]
@@ -29,7 +29,7 @@ pub fn run(a: EnvCheckArgs) -> anyhow::Result<ExitCode> {
                 &report.to_json(),
             )?);
         } else {
-            print!("{report}");
+            println!("{report}");
         }
     }
     if a.json {
