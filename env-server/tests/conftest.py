@@ -5,7 +5,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import pytest
-from server_process import start_server, stop_server
+
+from million_env.server_process import start_server, stop_server
 
 
 @pytest.fixture(scope="session")

@@ -7,10 +7,10 @@ import time
 import grpc
 import numpy as np
 import pytest
-from server_process import start_server, stop_server
 
 from million_env._proto import env_pb2, env_pb2_grpc
 from million_env.cli import parse_args
+from million_env.server_process import start_server, stop_server
 from million_env.tensors import encode_tensor
 
 

@@ -7,20 +7,11 @@ the session. ``--env ID[:key=value,...]`` (repeatable) chooses the env ids.
 
 from __future__ import annotations
 
-import os
-import re
-import shutil
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
-from pathlib import Path
 
-import grpc
 import pytest
 from contract_support import Api, EnvCase
-from grpc_health.v1 import health_pb2, health_pb2_grpc
+from million_env.server_process import running_server, wait_until_serving
 
 # Extend this list as the server gains env families; every entry runs every
 # generic check. Meta-World and MILLION ids carry the kwargs they need.
@@ -33,8 +24,6 @@ DEFAULT_ENVS = (
     "million/PointGoal",
     "million/ML10-train",
 )
-REPO_ROOT = Path(__file__).resolve().parents[2]
-STARTUP_TIMEOUT_S = 120.0
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -69,42 +58,6 @@ def pytest_generate_tests(metafunc: pytest.Metafunc) -> None:
         )
 
 
-def _server_command() -> list[str]:
-    script = REPO_ROOT / ".venv" / "bin" / "million-env-server"
-    if script.exists():
-        return [str(script)]
-    found = shutil.which("million-env-server")
-    if found:
-        return [found]
-    return [sys.executable, "-m", "million_env.cli"]
-
-
-def wait_until_serving(
-    address: str, timeout_s: float, process: subprocess.Popen | None = None
-) -> None:
-    deadline = time.monotonic() + timeout_s
-    with grpc.insecure_channel(address) as channel:
-        health = health_pb2_grpc.HealthStub(channel)
-        while True:
-            if process is not None and process.poll() is not None:
-                raise RuntimeError(
-                    f"env server exited with {process.returncode} before serving"
-                )
-            try:
-                reply = health.Check(
-                    health_pb2.HealthCheckRequest(service=""), timeout=2
-                )
-                if reply.status == health_pb2.HealthCheckResponse.SERVING:
-                    return
-            except grpc.RpcError:
-                pass
-            if time.monotonic() > deadline:
-                raise TimeoutError(
-                    f"env server at {address} not SERVING after {timeout_s} s"
-                )
-            time.sleep(0.2)
-
-
 @pytest.fixture(scope="session")
 def server_address(
     request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
@@ -115,43 +68,13 @@ def server_address(
         yield given
         return
     log_path = tmp_path_factory.mktemp("env-server") / "server.log"
-    with log_path.open("w") as log:
-        process = subprocess.Popen(
-            [
-                *_server_command(),
-                "--address",
-                "127.0.0.1:0",
-                "--max-envs-per-handle",
-                "64",
-                "--max-envs-total",
-                "512",
-                "--log-level",
-                "WARNING",
-            ],
-            stdout=subprocess.PIPE,
-            stderr=log,
-            text=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
-    try:
-        assert process.stdout is not None
-        line = process.stdout.readline()
-        match = re.search(r"listening on (\S+:\d+)", line)
-        if match is None:
-            process.wait(timeout=5)
-            raise RuntimeError(
-                f"env server did not start: {line!r}; log:\n{log_path.read_text()}"
-            )
-        address = match.group(1)
-        wait_until_serving(address, STARTUP_TIMEOUT_S, process)
+    with (
+        log_path.open("w") as log,
+        running_server(
+            "--max-envs-per-handle", "64", "--max-envs-total", "512", log=log
+        ) as address,
+    ):
         yield address
-    finally:
-        process.send_signal(signal.SIGTERM)
-        try:
-            process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
 
 
 @pytest.fixture(scope="session")
