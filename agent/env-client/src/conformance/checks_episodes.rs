@@ -96,18 +96,29 @@ pub(crate) async fn terminated_truncated_distinct(ctx: &Ctx) -> anyhow::Result<O
     )))
 }
 
-pub(crate) async fn autoreset_same_step(ctx: &Ctx) -> anyhow::Result<Outcome> {
+/// A handle in `mode` and a DISABLED twin, both reset with the same seeds: stepped
+/// with the same actions, the twin's manual resets show what the autoreset must
+/// produce. `Err` is the skip when the time limit exceeds the step budget.
+struct Paired {
+    h: String,
+    d: String,
+    spec: EnvSpec,
+    steps: u64,
+    sampler: crate::action::ActionSampler,
+}
+
+async fn paired(
+    ctx: &Ctx,
+    mode: AutoresetMode,
+    salt: u64,
+) -> anyhow::Result<Result<Paired, Outcome>> {
     let n = ctx.num_envs;
-    let (h, spec) = ctx.make(n, AutoresetMode::SameStep).await?;
+    let (h, spec) = ctx.make(n, mode).await?;
     let (d, _) = ctx.make(n, AutoresetMode::Disabled).await?;
-    ensure!(
-        spec.autoreset == AutoresetMode::SameStep,
-        "spec autoreset {}",
-        spec.autoreset
-    );
+    ensure!(spec.autoreset == mode, "spec autoreset {}", spec.autoreset);
     let steps = match budget(ctx, &spec) {
         Ok(b) => b,
-        Err(skip) => return Ok(skip),
+        Err(skip) => return Ok(Err(skip)),
     };
     let seeds = ctx.seeds(0, n);
     ctx.client.reset(&h, &[], &seeds).await.context("Reset")?;
@@ -115,7 +126,28 @@ pub(crate) async fn autoreset_same_step(ctx: &Ctx) -> anyhow::Result<Outcome> {
         .reset(&d, &[], &seeds)
         .await
         .context("Reset of the DISABLED handle")?;
-    let mut sampler = ctx.sampler(&spec, 21)?;
+    let sampler = ctx.sampler(&spec, salt)?;
+    Ok(Ok(Paired {
+        h,
+        d,
+        spec,
+        steps,
+        sampler,
+    }))
+}
+
+pub(crate) async fn autoreset_same_step(ctx: &Ctx) -> anyhow::Result<Outcome> {
+    let n = ctx.num_envs;
+    let Paired {
+        h,
+        d,
+        spec,
+        steps,
+        mut sampler,
+    } = match paired(ctx, AutoresetMode::SameStep, 21).await? {
+        Ok(p) => p,
+        Err(skip) => return Ok(skip),
+    };
     let all: Vec<usize> = (0..n).collect();
     for t in 0..steps {
         let action = sampler.sample(n);
@@ -190,24 +222,16 @@ pub(crate) async fn autoreset_same_step(ctx: &Ctx) -> anyhow::Result<Outcome> {
 
 pub(crate) async fn autoreset_next_step(ctx: &Ctx) -> anyhow::Result<Outcome> {
     let n = ctx.num_envs;
-    let (h, spec) = ctx.make(n, AutoresetMode::NextStep).await?;
-    let (d, _) = ctx.make(n, AutoresetMode::Disabled).await?;
-    ensure!(
-        spec.autoreset == AutoresetMode::NextStep,
-        "spec autoreset {}",
-        spec.autoreset
-    );
-    let steps = match budget(ctx, &spec) {
-        Ok(b) => b,
+    let Paired {
+        h,
+        d,
+        spec,
+        steps,
+        mut sampler,
+    } = match paired(ctx, AutoresetMode::NextStep, 22).await? {
+        Ok(p) => p,
         Err(skip) => return Ok(skip),
     };
-    let seeds = ctx.seeds(0, n);
-    ctx.client.reset(&h, &[], &seeds).await.context("Reset")?;
-    ctx.client
-        .reset(&d, &[], &seeds)
-        .await
-        .context("Reset of the DISABLED handle")?;
-    let mut sampler = ctx.sampler(&spec, 22)?;
     let all: Vec<usize> = (0..n).collect();
     for t in 0..steps {
         let action = sampler.sample(n);
