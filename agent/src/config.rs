@@ -273,6 +273,14 @@ impl RuntimeConfig {
     }
 }
 
+/// The text of a config file, or a `Read` error naming it.
+pub fn read_config_file(path: &Path) -> Result<String, ConfigError> {
+    std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        path: path.display().to_string(),
+        source,
+    })
+}
+
 impl AgentConfig {
     pub fn from_toml_str(text: &str) -> Result<Self, ConfigError> {
         let cfg: AgentConfig = toml::from_str(text)?;
@@ -281,11 +289,7 @@ impl AgentConfig {
     }
 
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::from_toml_str(&text)
+        Self::from_toml_str(&read_config_file(path)?)
     }
 
     pub fn validate(&self) -> Result<(), ConfigError> {

@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{
     AgentConfig, BufferConfig, ConfigError, ModelConfig, OptimConfig, PopArtConfig, RuntimeConfig,
-    VmpoConfig,
+    VmpoConfig, read_config_file,
 };
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
@@ -128,11 +128,7 @@ impl RunConfig {
     }
 
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-            path: path.display().to_string(),
-            source,
-        })?;
-        Self::from_toml_str(&text).map_err(|e| match e {
+        Self::from_toml_str(&read_config_file(path)?).map_err(|e| match e {
             ConfigError::Parse(p) => ConfigError::Invalid(format!("{}: {p}", path.display())),
             ConfigError::Invalid(m) => ConfigError::Invalid(format!("{}: {m}", path.display())),
             other => other,
