@@ -5,10 +5,12 @@ use std::future::Future;
 use std::time::{Duration, Instant};
 
 use tonic::Request;
+use tonic::service::interceptor::InterceptedService;
 use tonic::transport::{Channel, Endpoint};
 use tonic_health::pb::health_client::HealthClient;
 use tonic_health::pb::{HealthCheckRequest, health_check_response::ServingStatus};
 
+use crate::access::{AuthInterceptor, TlsOptions, Token};
 use crate::error::{EnvError, Result};
 use crate::proto;
 use crate::proto::env_service_client::EnvServiceClient;
@@ -19,7 +21,17 @@ use crate::tensor::Tensor;
 use crate::value::{Kwargs, kwargs_to_proto};
 
 /// The API version this client speaks (`proto/million/env/v1`).
-pub const API_VERSION: (u32, u32) = (1, 0);
+pub const API_VERSION: (u32, u32) = (1, 1);
+
+/// The optional feature that serves the `Render` RPC (`Capabilities.features`).
+pub const FEATURE_RENDER: &str = "render";
+
+/// The API's maximum message size (env.proto), the server's limit too: a larger
+/// request would only be refused by the server after being sent.
+pub const MAX_MESSAGE_BYTES: usize = 64 << 20;
+
+/// A connection whose every call carries the token, when there is one.
+pub type Transport = InterceptedService<Channel, AuthInterceptor>;
 
 /// Deadlines of the calls.
 #[derive(Clone, Debug)]
@@ -75,10 +87,14 @@ pub struct ClientConfig {
     pub retry: RetryPolicy,
     /// Sent in the handshake for the server's logs.
     pub client_name: String,
-    /// Largest reply accepted (observations with images can be large).
+    /// Largest request sent and reply accepted (the API's maximum by default).
     pub max_message_bytes: usize,
     /// The version announced in the handshake; only tests change it.
     pub api_version: (u32, u32),
+    /// The server's shared token, sent with every call (`--env-token`).
+    pub token: Option<Token>,
+    /// TLS towards the server (`--env-tls-ca`); plaintext when none.
+    pub tls: Option<TlsOptions>,
 }
 
 impl Default for ClientConfig {
@@ -87,8 +103,10 @@ impl Default for ClientConfig {
             timeouts: Timeouts::default(),
             retry: RetryPolicy::default(),
             client_name: concat!("million-env/", env!("CARGO_PKG_VERSION")).to_owned(),
-            max_message_bytes: 256 << 20,
+            max_message_bytes: MAX_MESSAGE_BYTES,
             api_version: API_VERSION,
+            token: None,
+            tls: None,
         }
     }
 }
@@ -102,22 +120,52 @@ pub struct ServerInfo {
     pub max_envs_total: u32,
     pub autoreset_modes: Vec<AutoresetMode>,
     pub streaming: bool,
+    /// Optional features by name (API 1.1), e.g. [`FEATURE_RENDER`].
+    pub features: Vec<String>,
+}
+
+impl ServerInfo {
+    pub fn has_feature(&self, name: &str) -> bool {
+        self.features.iter().any(|f| f == name)
+    }
+}
+
+/// RGB frames from `Render`: `rows` frames of `height` x `width` pixels, row-major
+/// `[rows, height, width, 3]` bytes, row 0 of each frame at its top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frames {
+    pub rows: usize,
+    pub height: usize,
+    pub width: usize,
+    pub data: bytes::Bytes,
+    /// The env index each frame belongs to.
+    pub env_indices: Vec<u32>,
+}
+
+impl Frames {
+    /// The RGB bytes of frame `row` (`height * width * 3`).
+    pub fn frame(&self, row: usize) -> &[u8] {
+        let n = self.height * self.width * 3;
+        &self.data[row * n..(row + 1) * n]
+    }
 }
 
 /// A connected, handshaken client of one server. Cloning shares the connection.
 #[derive(Clone, Debug)]
 pub struct EnvClient {
     addr: String,
-    channel: Channel,
-    inner: EnvServiceClient<Channel>,
+    channel: Transport,
+    inner: EnvServiceClient<Transport>,
     server: ServerInfo,
     config: ClientConfig,
 }
 
-/// `host:port` or a full URI, as tonic wants it.
-fn endpoint_uri(addr: &str) -> String {
+/// `host:port` or a full URI, as tonic wants it (https when TLS is on).
+fn endpoint_uri(addr: &str, tls: bool) -> String {
     if addr.contains("://") {
         addr.to_owned()
+    } else if tls {
+        format!("https://{addr}")
     } else {
         format!("http://{addr}")
     }
@@ -167,16 +215,25 @@ impl EnvClient {
             elapsed: Duration::ZERO,
             last_error: e,
         };
-        let endpoint = Endpoint::from_shared(endpoint_uri(addr))
-            .map_err(|e| EnvError::InvalidInput(format!("bad server address {addr:?}: {e}")))?
+        let bad_address = |e: tonic::transport::Error| {
+            EnvError::InvalidInput(format!("bad server address {addr:?}: {e}"))
+        };
+        let mut endpoint = Endpoint::from_shared(endpoint_uri(addr, config.tls.is_some()))
+            .map_err(bad_address)?
             .connect_timeout(config.timeouts.connect)
             .tcp_nodelay(true);
+        if let Some(tls) = &config.tls {
+            endpoint = endpoint
+                .tls_config(tls.client_config())
+                .map_err(bad_address)?;
+        }
         let channel = match tokio::time::timeout(config.timeouts.connect, endpoint.connect()).await
         {
             Ok(Ok(ch)) => ch,
             Ok(Err(e)) => return Err(unreachable(format!("{e}: {}", source_chain(&e)))),
             Err(_) => return Err(unreachable("connect timed out".into())),
         };
+        let channel = InterceptedService::new(channel, AuthInterceptor::new(config.token.as_ref()));
         let inner = EnvServiceClient::new(channel.clone())
             .max_decoding_message_size(config.max_message_bytes)
             .max_encoding_message_size(config.max_message_bytes);
@@ -191,6 +248,7 @@ impl EnvClient {
                 max_envs_total: 0,
                 autoreset_modes: Vec::new(),
                 streaming: false,
+                features: Vec::new(),
             },
             config: config.clone(),
         };
@@ -237,6 +295,7 @@ impl EnvClient {
                 .collect::<std::result::Result<_, _>>()
                 .map_err(|e| EnvError::protocol(addr, e))?,
             streaming: caps.streaming,
+            features: caps.features,
         };
         Ok(client)
     }
@@ -253,8 +312,9 @@ impl EnvClient {
         &self.config
     }
 
-    /// The underlying connection, for other services on the same server.
-    pub fn channel(&self) -> Channel {
+    /// The underlying connection (with the token), for other services on the
+    /// same server.
+    pub fn channel(&self) -> Transport {
         self.channel.clone()
     }
 
@@ -349,16 +409,23 @@ impl EnvClient {
         num_envs: usize,
         autoreset: AutoresetMode,
     ) -> Result<(String, EnvSpec)> {
-        let num_envs = u32::try_from(num_envs)
-            .map_err(|_| EnvError::InvalidInput(format!("num_envs {num_envs} too large")))?;
-        let reply = self
-            .make_raw(proto::MakeRequest {
-                env_id: env_id.to_owned(),
-                kwargs: kwargs_to_proto(kwargs),
-                num_envs,
-                autoreset_mode: autoreset.to_proto() as i32,
-            })
-            .await?;
+        let request = make_request(env_id, kwargs, num_envs, autoreset)?;
+        let reply = self.make_raw(request).await?;
+        self.parse_made(env_id, num_envs, reply)
+    }
+
+    /// True when the server takes `make` on a Session stream (API 1.1).
+    pub fn makes_on_streams(&self) -> bool {
+        self.server.version >= (1, 1) && self.server.streaming
+    }
+
+    /// The handle and checked spec of a Make reply (unary or on a stream).
+    pub(crate) fn parse_made(
+        &self,
+        env_id: &str,
+        num_envs: usize,
+        reply: proto::MakeResponse,
+    ) -> Result<(String, EnvSpec)> {
         let spec = EnvSpec::from_proto(
             reply
                 .spec
@@ -366,7 +433,7 @@ impl EnvClient {
                 .ok_or_else(|| EnvError::protocol(&self.addr, "make reply without a spec"))?,
         )
         .map_err(|e| EnvError::protocol(&self.addr, format!("spec of {env_id}: {e}")))?;
-        if spec.num_envs != num_envs as usize {
+        if spec.num_envs != num_envs {
             return Err(EnvError::protocol(
                 &self.addr,
                 format!("asked for {num_envs} envs, the spec says {}", spec.num_envs),
@@ -422,6 +489,67 @@ impl EnvClient {
         .map(|_| ())
     }
 
+    pub async fn render_raw(&self, req: proto::RenderRequest) -> Result<proto::RenderResponse> {
+        let d = self.config.timeouts.step;
+        let mut c = self.inner.clone();
+        self.call("Render", d, c.render(Self::request(req, d)))
+            .await
+    }
+
+    /// RGB frames of the envs `indices` (all when empty) of `handle`; `width`/`height`
+    /// 0 and `camera` "" take the server's defaults. Needs the server's
+    /// [`FEATURE_RENDER`]; an env that cannot draw itself is `UNIMPLEMENTED`.
+    pub async fn render(
+        &self,
+        handle: &str,
+        indices: &[u32],
+        width: u32,
+        height: u32,
+        camera: &str,
+    ) -> Result<Frames> {
+        if !self.server.has_feature(FEATURE_RENDER) {
+            return Err(EnvError::InvalidInput(format!(
+                "the env server at {} does not render (no {FEATURE_RENDER:?} feature)",
+                self.addr
+            )));
+        }
+        let reply = self
+            .render_raw(proto::RenderRequest {
+                handle: handle.to_owned(),
+                env_indices: indices.to_vec(),
+                width,
+                height,
+                camera: camera.to_owned(),
+            })
+            .await?;
+        let bad = |m: String| EnvError::protocol(&self.addr, format!("Render reply: {m}"));
+        let frames = Tensor::from_proto(reply.frames.ok_or_else(|| bad("no frames".into()))?)
+            .map_err(bad)?;
+        let shape = frames.shape().to_vec();
+        if frames.dtype() != crate::tensor::DType::UInt8 || shape.len() != 4 || shape[3] != 3 {
+            return Err(bad(format!(
+                "frames must be uint8 [rows, height, width, 3], got {:?} {shape:?}",
+                frames.dtype()
+            )));
+        }
+        if shape[0] != reply.env_indices.len()
+            || (width > 0 && shape[2] != width as usize)
+            || (height > 0 && shape[1] != height as usize)
+        {
+            return Err(bad(format!(
+                "frames of shape {shape:?} for {} envs asked at {width} x {height}",
+                reply.env_indices.len()
+            )));
+        }
+        Ok(Frames {
+            rows: shape[0],
+            height: shape[1],
+            width: shape[2],
+            data: frames.data().clone(),
+            env_indices: reply.env_indices,
+        })
+    }
+
     pub async fn stats(&self) -> Result<HashMap<String, f64>> {
         let d = self.config.timeouts.call;
         let mut c = self.inner.clone();
@@ -443,6 +571,22 @@ impl EnvClient {
             self.config.timeouts.step,
         )
     }
+}
+
+pub(crate) fn make_request(
+    env_id: &str,
+    kwargs: &Kwargs,
+    num_envs: usize,
+    autoreset: AutoresetMode,
+) -> Result<proto::MakeRequest> {
+    let num_envs = u32::try_from(num_envs)
+        .map_err(|_| EnvError::InvalidInput(format!("num_envs {num_envs} too large")))?;
+    Ok(proto::MakeRequest {
+        env_id: env_id.to_owned(),
+        kwargs: kwargs_to_proto(kwargs),
+        num_envs,
+        autoreset_mode: autoreset.to_proto() as i32,
+    })
 }
 
 pub(crate) fn reset_request(handle: &str, indices: &[u32], seeds: &[i64]) -> proto::ResetRequest {

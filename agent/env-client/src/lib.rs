@@ -33,12 +33,18 @@
 //! ```
 
 /// Messages and the gRPC client generated from `proto/million/env/v1/env.proto`.
-// The generated code carries the proto's comments verbatim.
-#[allow(clippy::doc_lazy_continuation, clippy::doc_overindented_list_items)]
+// The generated code carries the proto's comments verbatim; its oneofs hold
+// messages inline (a SessionResponse's MakeResponse is large, but rare).
+#[allow(
+    clippy::doc_lazy_continuation,
+    clippy::doc_overindented_list_items,
+    clippy::large_enum_variant
+)]
 pub mod proto {
     tonic::include_proto!("million.env.v1");
 }
 
+pub mod access;
 pub mod action;
 pub mod client;
 pub mod conformance;
@@ -49,18 +55,26 @@ pub mod pool;
 pub mod reply;
 pub mod session;
 pub mod space;
+pub mod supervised;
 pub mod tensor;
 pub mod value;
 
+pub use access::{AccessError, TOKEN_ENV_VAR, TlsOptions, Token};
 pub use action::{ActionSampler, Actions, encode_actions};
-pub use client::{API_VERSION, ClientConfig, EnvClient, RetryPolicy, ServerInfo, Timeouts};
+pub use client::{
+    API_VERSION, ClientConfig, EnvClient, FEATURE_RENDER, Frames, MAX_MESSAGE_BYTES, RetryPolicy,
+    ServerInfo, Timeouts,
+};
 pub use conformance::{Report, run_conformance};
 pub use error::{EnvError, Result};
 pub use local_server::{LocalServer, LocalServerError, LocalServerOptions, default_server_binary};
 pub use observation::{FLAT_FIELD, Fields, InfoBatch, InfoField, Observation};
-pub use pool::{EnvPool, PoolConfig, PoolStats, ResetBatch, StepBatch};
+pub use pool::{
+    DnsResolver, EnvPool, PoolConfig, PoolStats, ResetBatch, Resolve, ResolveFuture, StepBatch,
+};
 pub use reply::{ResetResult, StepResult};
 pub use session::{Session, SessionReply};
 pub use space::{AutoresetMode, BoxSpace, EnvSpec, InfoFieldSpec, Space};
+pub use supervised::{RestartPolicy, SupervisedServer};
 pub use tensor::{DType, Tensor};
 pub use value::{Kwargs, Value, parse_env_case, parse_kwarg, parse_kwargs};

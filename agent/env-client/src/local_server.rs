@@ -6,7 +6,7 @@
 //! port. It is ready once grpc.health answers SERVING, and killed when dropped.
 
 use std::path::{Path, PathBuf};
-use std::process::Stdio;
+use std::process::{ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
 use tokio::io::{AsyncBufReadExt, BufReader};
@@ -42,6 +42,12 @@ pub struct LocalServerOptions {
     pub preload: Vec<String>,
     /// How long to wait for health (a preload of ML45 takes about a minute).
     pub ready_timeout: Duration,
+    /// More command-line arguments (`--tls-cert`, `--max-envs-total`, ...).
+    pub extra_args: Vec<String>,
+    /// Environment variables of the process (`MILLION_ENV_TOKEN`).
+    pub env: Vec<(String, String)>,
+    /// How the readiness check connects (token, TLS) to a guarded server.
+    pub client: ClientConfig,
 }
 
 impl Default for LocalServerOptions {
@@ -50,6 +56,9 @@ impl Default for LocalServerOptions {
             log_level: "WARNING".into(),
             preload: Vec::new(),
             ready_timeout: Duration::from_secs(180),
+            extra_args: Vec::new(),
+            env: Vec::new(),
+            client: ClientConfig::default(),
         }
     }
 }
@@ -129,6 +138,26 @@ impl LocalServer {
         self.port
     }
 
+    /// The process id while the server runs.
+    pub fn pid(&self) -> Option<u32> {
+        self.child.as_ref().and_then(Child::id)
+    }
+
+    /// Waits until the process exits by itself (or was killed from outside);
+    /// `None` when no process is running.
+    pub async fn wait_exit(&mut self) -> Option<std::io::Result<ExitStatus>> {
+        let status = self.child.as_mut()?.wait().await;
+        self.child = None;
+        Some(status)
+    }
+
+    /// Starts the server again on its port and waits until it is healthy.
+    pub async fn relaunch(&mut self) -> Result<(), LocalServerError> {
+        self.kill().await;
+        self.launch(self.port).await?;
+        self.wait_ready().await
+    }
+
     /// Kills the process (SIGKILL: its clients get no goodbye, as in a crash).
     pub async fn kill(&mut self) {
         if let Some(mut child) = self.child.take() {
@@ -157,7 +186,7 @@ impl LocalServer {
                 max_elapsed: waited,
                 ..RetryPolicy::default()
             },
-            ..ClientConfig::default()
+            ..self.options.client.clone()
         };
         let client = EnvClient::connect(&self.addr, config)
             .await
@@ -182,6 +211,10 @@ impl LocalServer {
         for benchmark in &self.options.preload {
             command.args(["--preload", benchmark]);
         }
+        command
+            .args(&self.options.extra_args)
+            .envs(self.options.env.iter().map(|(k, v)| (k, v)));
+        die_with_parent(&mut command);
         let mut child = command.spawn().map_err(|source| LocalServerError::Spawn {
             binary: self.binary.clone(),
             source,
@@ -217,4 +250,26 @@ impl LocalServer {
         self.child = Some(child);
         Ok(())
     }
+}
+
+/// A server started here must not outlive the process that started it: `kill_on_drop` only
+/// runs when the owner is dropped, not when the agent is killed (SIGKILL, the OOM killer) —
+/// seen: two servers left running for half an hour after a `million train` was killed.
+/// On Linux the kernel sends the server SIGKILL when the thread that spawned it exits (here
+/// a tokio worker, which lives as long as the runtime).
+fn die_with_parent(command: &mut Command) {
+    #[cfg(target_os = "linux")]
+    // SAFETY: the closure runs in the forked child before exec and only calls prctl, which
+    // is async-signal-safe.
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) == 0 {
+                Ok(())
+            } else {
+                Err(std::io::Error::last_os_error())
+            }
+        });
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = command;
 }

@@ -6,8 +6,8 @@ use std::time::Duration;
 use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio_stream::wrappers::UnboundedReceiverStream;
-use tonic::transport::Channel;
 
+use crate::client::Transport;
 use crate::error::{EnvError, Result};
 use crate::proto::env_service_client::EnvServiceClient;
 use crate::proto::{SessionRequest, SessionResponse, session_request, session_response};
@@ -18,6 +18,11 @@ use crate::reply::{ResetResult, StepResult};
 pub enum SessionReply {
     Reset(ResetResult),
     Step(StepResult),
+    /// A handle made on the stream (API 1.1), owned by it: the server closes it
+    /// when the stream ends.
+    /// Boxed: a spec is large, and steps (the common reply) should stay small.
+    Make(Box<crate::proto::MakeResponse>),
+    Closed,
 }
 
 /// One open Session stream. Dropping it ends the stream.
@@ -44,7 +49,7 @@ impl Session {
     /// them back until its first reply).
     pub(crate) fn open(
         addr: String,
-        mut client: EnvServiceClient<Channel>,
+        mut client: EnvServiceClient<Transport>,
         deadline: Duration,
     ) -> Self {
         let (req_tx, req_rx) = mpsc::unbounded_channel();
@@ -117,13 +122,17 @@ impl Session {
 
     /// The next reply exactly as the server sent it (within the deadline).
     pub async fn recv_raw(&mut self) -> Result<SessionResponse> {
+        self.recv_raw_within(self.deadline).await
+    }
+
+    async fn recv_raw_within(&mut self, deadline: Duration) -> Result<SessionResponse> {
         let expected = self.pending.pop_front();
-        let reply = match tokio::time::timeout(self.deadline, self.replies.recv()).await {
+        let reply = match tokio::time::timeout(deadline, self.replies.recv()).await {
             Err(_) => {
                 return Err(EnvError::Deadline {
                     addr: self.addr.clone(),
                     call: "Session",
-                    deadline: self.deadline,
+                    deadline,
                 });
             }
             Ok(None) => {
@@ -156,8 +165,13 @@ impl Session {
     /// The next reply, checked to answer the oldest outstanding request; an
     /// in-stream error becomes `EnvError::Rpc` with the server's status code.
     pub async fn recv(&mut self) -> Result<SessionReply> {
+        self.recv_within(self.deadline).await
+    }
+
+    /// `recv` with another deadline (a `make` may take minutes).
+    pub async fn recv_within(&mut self, deadline: Duration) -> Result<SessionReply> {
         let expected = self.pending.front().copied();
-        let reply = self.recv_raw().await?;
+        let reply = self.recv_raw_within(deadline).await?;
         if Some(reply.request_id) != expected {
             return Err(EnvError::protocol(
                 &self.addr,
@@ -174,6 +188,8 @@ impl Session {
             Some(session_response::Response::Step(s)) => {
                 Ok(SessionReply::Step(StepResult::from_proto(&self.addr, s)?))
             }
+            Some(session_response::Response::Make(m)) => Ok(SessionReply::Make(Box::new(m))),
+            Some(session_response::Response::Close(_)) => Ok(SessionReply::Closed),
             Some(session_response::Response::Error(e)) => Err(EnvError::Rpc {
                 addr: self.addr.clone(),
                 call: "Session",

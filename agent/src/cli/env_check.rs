@@ -1,7 +1,10 @@
 use std::process::ExitCode;
 
 use clap::Args;
-use million_env::{parse_env_case, run_conformance};
+use million_env::conformance::{ConformanceOptions, run_conformance_with};
+use million_env::parse_env_case;
+
+use crate::cli::access::EnvAccessArgs;
 
 #[derive(Debug, Args)]
 pub struct EnvCheckArgs {
@@ -13,16 +16,22 @@ pub struct EnvCheckArgs {
     pub envs: Vec<String>,
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub access: EnvAccessArgs,
 }
 
 pub fn run(a: EnvCheckArgs) -> anyhow::Result<ExitCode> {
+    let access = a.access.resolve()?;
     let rt = super::runtime(1)?;
     let mut all_passed = true;
     let mut reports = vec![];
     for case in &a.envs {
         let (env_id, kwargs) =
             parse_env_case(case).map_err(|e| anyhow::anyhow!("--env {case:?}: {e}"))?;
-        let report = rt.block_on(run_conformance(&a.env_server, &env_id, kwargs));
+        let mut options = ConformanceOptions::new(&a.env_server, env_id, kwargs);
+        options.client.token = access.token.clone();
+        options.client.tls = access.tls.clone();
+        let report = rt.block_on(run_conformance_with(options));
         all_passed &= report.passed();
         if a.json {
             reports.push(serde_json::from_str::<serde_json::Value>(

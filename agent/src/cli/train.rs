@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::Args;
 
+use crate::cli::access::EnvAccessArgs;
 use crate::run_config::RunConfig;
 use crate::train::session::{TrainOptions, train};
 
@@ -13,7 +14,8 @@ pub struct TrainArgs {
     /// Run config (TOML), e.g. configs/ml10.toml.
     #[arg(long)]
     pub config: PathBuf,
-    /// host:port of an env server (repeatable); none = start local servers.
+    /// host:port of an env server (repeatable); a name with several addresses (a scaled
+    /// Docker service, a Kubernetes headless Service) means every replica. None = local servers.
     #[arg(long = "env-server")]
     pub env_servers: Vec<String>,
     /// Where metrics and checkpoints go (default runs/<config name>).
@@ -25,10 +27,13 @@ pub struct TrainArgs {
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
+    #[command(flatten)]
+    pub access: EnvAccessArgs,
 }
 
 pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
     let config = RunConfig::from_file(&a.config)?;
+    let env_access = a.access.resolve()?;
     let run_dir = a.run_dir.unwrap_or_else(|| {
         PathBuf::from("runs").join(
             a.config
@@ -49,6 +54,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
         train(TrainOptions {
             config,
             servers: a.env_servers,
+            env_access,
             run_dir: Some(run_dir.clone()),
             resume: a.resume,
             progress: true,

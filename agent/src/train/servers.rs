@@ -1,25 +1,44 @@
-//! Env servers for a run: local `million-env-server` processes (killed when dropped) and the
-//! client settings the pool uses for them.
+//! Env servers for a run: local `million-env-server` processes (restarted on
+//! their port when they die, killed when dropped) and the client settings the
+//! pool uses for them.
 
 use anyhow::Context;
-use million_env::{ClientConfig, LocalServer, LocalServerOptions, default_server_binary};
+use million_env::{
+    ClientConfig, LocalServer, LocalServerOptions, RestartPolicy, SupervisedServer, TlsOptions,
+    Token, default_server_binary,
+};
 
 use crate::run_config::RunConfig;
 
-/// Starts `count` local env servers from the repository's `.venv`.
-pub async fn start_local_servers(count: usize) -> anyhow::Result<Vec<LocalServer>> {
+/// How to reach guarded env servers (`--env-token`, `--env-tls-ca`); local
+/// servers listen on loopback only and need neither.
+#[derive(Clone, Debug, Default)]
+pub struct EnvAccess {
+    pub token: Option<Token>,
+    pub tls: Option<TlsOptions>,
+}
+
+/// Starts `count` local env servers from the repository's `.venv`; each is
+/// restarted on its port if its process dies, so the pool reconnects to it.
+pub async fn start_local_servers(count: usize) -> anyhow::Result<Vec<SupervisedServer>> {
     let binary = default_server_binary().context(
         "no --env-server given and no local million-env-server found (run `make setup`)",
     )?;
     tracing::info!(count, binary = %binary.display(), "starting local env servers");
-    LocalServer::start_many(&binary, LocalServerOptions::default(), count)
+    let servers = LocalServer::start_many(&binary, LocalServerOptions::default(), count)
         .await
-        .context("starting local env servers")
+        .context("starting local env servers")?;
+    Ok(servers
+        .into_iter()
+        .map(|s| SupervisedServer::new(s, RestartPolicy::default()))
+        .collect())
 }
 
-/// Client settings: the config's Make deadline, defaults otherwise.
-pub fn client_config(cfg: &RunConfig) -> ClientConfig {
+/// Client settings: the config's Make deadline and `access`, defaults otherwise.
+pub fn client_config(cfg: &RunConfig, access: &EnvAccess) -> ClientConfig {
     let mut client = ClientConfig::default();
     client.timeouts.make = std::time::Duration::from_secs(cfg.env.make_timeout_s);
+    client.token = access.token.clone();
+    client.tls = access.tls.clone();
     client
 }

@@ -14,6 +14,7 @@ from million_env._proto import env_pb2
 from million_env.errors import ApiError, internal, invalid, precondition
 from million_env.info_fields import InfoField, declared_info_fields, encode_info
 from million_env.registry import make_env
+from million_env.rendering import RendererCache, frame_size, on_render_thread, render_env
 from million_env.spaces import (
     UnsupportedSpaceError,
     decode_actions,
@@ -21,7 +22,7 @@ from million_env.spaces import (
     space_to_proto,
     zero_observation,
 )
-from million_env.tensors import representable_values
+from million_env.tensors import encode_tensor, representable_values
 
 _LOG = logging.getLogger(__name__)
 
@@ -74,6 +75,7 @@ class EnvBatch:
         self.num_envs = num_envs
         self.autoreset_mode = autoreset_mode
         self.envs: list[gym.Env] = []
+        self._renderers = RendererCache()
         try:
             for _ in range(num_envs):
                 self.envs.append(make_env(env_id, kwargs))
@@ -113,6 +115,8 @@ class EnvBatch:
         return self._spec
 
     def close(self) -> None:
+        # GL contexts are freed on the thread that made them, before their scenes go.
+        on_render_thread(self._renderers.close)
         for env in self.envs:
             try:
                 env.close()
@@ -124,12 +128,7 @@ class EnvBatch:
         self, indices: Sequence[int], seeds: Sequence[int], options: Mapping[str, Any]
     ) -> env_pb2.ResetResponse:
         self._check_usable()
-        rows = list(indices) if indices else list(range(self.num_envs))
-        bad = [i for i in rows if i >= self.num_envs]
-        if bad:
-            raise invalid(f"env indices {bad} out of range for a batch of {self.num_envs}")
-        if len(set(rows)) != len(rows):
-            raise invalid(f"env indices {rows} name an environment twice")
+        rows = self._rows(indices)
         if seeds and len(seeds) != len(rows):
             raise invalid(f"{len(seeds)} seeds for {len(rows)} environments; give one each or none")
         if any(s < 0 for s in seeds):
@@ -201,6 +200,45 @@ class EnvBatch:
             )
             response.final_info.CopyFrom(encode_info(self.info_fields, final_infos))
         return response
+
+    def render(
+        self, indices: Sequence[int], width: int, height: int, camera: str
+    ) -> env_pb2.RenderResponse:
+        """uint8 RGB frames [rows, height, width, 3] of the named envs (all when empty),
+        drawn on the render thread; rendering changes no environment, so a failure
+        leaves the handle usable."""
+        self._check_usable()
+        rows = self._rows(indices)
+        width, height = frame_size(width, height)
+        never = [i for i in rows if not self._was_reset[i]]
+        if never:
+            raise precondition(f"environments {never} were never reset; call Reset first")
+
+        def draw() -> np.ndarray:
+            frames = np.empty((len(rows), height, width, 3), dtype=np.uint8)
+            for position, index in enumerate(rows):
+                frames[position] = render_env(
+                    self.envs[index], width, height, camera, self._renderers
+                )
+            return frames
+
+        try:
+            frames = on_render_thread(draw)
+        except ApiError:
+            raise
+        except Exception as err:
+            _LOG.exception("rendering %s failed", self.env_id)
+            raise internal(f"rendering raised {type(err).__name__}: {err}") from err
+        return env_pb2.RenderResponse(frames=encode_tensor(frames), env_indices=rows)
+
+    def _rows(self, indices: Sequence[int]) -> list[int]:
+        rows = list(indices) if indices else list(range(self.num_envs))
+        bad = [i for i in rows if i >= self.num_envs]
+        if bad:
+            raise invalid(f"env indices {bad} out of range for a batch of {self.num_envs}")
+        if len(set(rows)) != len(rows):
+            raise invalid(f"env indices {rows} name an environment twice")
+        return rows
 
     def _reset_env(
         self, env: gym.Env, seed: int | None, options: dict[str, Any]

@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import logging
+import os
+from pathlib import Path
 
+from million_env import logs
 from million_env.metaworld_tasks import ALL_TASK_NAMES, BENCHMARKS
+from million_env.security import TOKEN_ENV_VAR, ServerTls, TlsConfigError
 from million_env.service import ServerLimits
+
+# Kept here rather than imported from server.py, which loads Meta-World.
+DEFAULT_SHUTDOWN_GRACE_S = 5.0
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -41,9 +47,36 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="build a Meta-World benchmark before serving: ML10, ML45 or ML1:TASK (repeatable)",
     )
     parser.add_argument(
+        "--token",
+        default=None,
+        help=f"require this shared token on every call but health (metadata "
+        f"'authorization: Bearer <token>'); default ${TOKEN_ENV_VAR}. Prefer the "
+        f"variable: a command line is visible to other users",
+    )
+    parser.add_argument("--tls-cert", type=Path, default=None, help="PEM certificate chain")
+    parser.add_argument("--tls-key", type=Path, default=None, help="PEM private key")
+    parser.add_argument(
+        "--shutdown-grace",
+        type=float,
+        default=DEFAULT_SHUTDOWN_GRACE_S,
+        metavar="SECONDS",
+        help="on SIGTERM, how long calls in flight may take to finish",
+    )
+    parser.add_argument(
         "--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"]
     )
+    parser.add_argument(
+        "--log-format", default="text", choices=["text", "json"], help="json: one object a line"
+    )
     args = parser.parse_args(argv)
+    if args.token is None:
+        args.token = os.environ.get(TOKEN_ENV_VAR) or None
+    if args.token is not None and not args.token.strip():
+        parser.error("--token must not be empty")
+    if (args.tls_cert is None) != (args.tls_key is None):
+        parser.error("--tls-cert and --tls-key go together")
+    if args.shutdown_grace < 0:
+        parser.error("--shutdown-grace must be 0 or positive")
     if args.handle_idle_timeout < 0:
         parser.error("--handle-idle-timeout must be 0 (never) or positive")
     if args.max_envs_per_handle < 1 or args.max_envs_total < 1:
@@ -61,13 +94,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    logging.basicConfig(
-        level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    logs.configure(args.log_level, args.log_format)
     from million_env.server import serve
 
+    tls = None
+    if args.tls_cert is not None:
+        try:
+            tls = ServerTls.from_files(args.tls_cert, args.tls_key)
+        except TlsConfigError as err:
+            raise SystemExit(f"million-env-server: {err}") from err
     limits = ServerLimits(args.max_envs_per_handle, args.max_envs_total, args.handle_idle_timeout)
-    asyncio.run(serve(args.address, limits, args.workers, args.preload))
+    asyncio.run(
+        serve(
+            args.address,
+            limits,
+            args.workers,
+            args.preload,
+            token=args.token,
+            tls=tls,
+            shutdown_grace_s=args.shutdown_grace,
+        )
+    )
 
 
 if __name__ == "__main__":

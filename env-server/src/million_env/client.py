@@ -4,7 +4,9 @@ unchanged: `RemoteEnv` is a `gymnasium.Env`, `RemoteVectorEnv` a
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import grpc
@@ -15,11 +17,14 @@ from gymnasium.vector.utils import batch_space
 
 from million_env._proto import env_pb2, env_pb2_grpc
 from million_env.info_fields import decode_info
+from million_env.security import TOKEN_ENV_VAR, bearer_metadata
 from million_env.spaces import decode_observations, leaf_dtype, space_from_proto
-from million_env.tensors import encode_tensor, python_to_values
+from million_env.tensors import decode_tensor, encode_tensor, python_to_values
 
-API_VERSION = env_pb2.ApiVersion(major=1, minor=0)
+API_VERSION = env_pb2.ApiVersion(major=1, minor=1)
 CLIENT_NAME = "million_env.client"
+# The API's maximum message size (env.proto), both ways.
+MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 # The first Make of a Meta-World benchmark builds its goal set (ML45: about a minute).
 MAKE_TIMEOUT_S = 600.0
 _MODE_TO_PROTO = {
@@ -27,6 +32,25 @@ _MODE_TO_PROTO = {
     AutoresetMode.SAME_STEP: env_pb2.AUTORESET_MODE_SAME_STEP,
     AutoresetMode.DISABLED: env_pb2.AUTORESET_MODE_DISABLED,
 }
+
+
+def open_channel(address: str, tls_root_cert: str | Path | bytes | None = None) -> grpc.Channel:
+    """A channel to ``address`` with the API's message size limit; TLS when a CA
+    certificate (PEM: a path, or the bytes) is given."""
+    options = [
+        ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
+        ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),
+    ]
+    if tls_root_cert is None:
+        return grpc.insecure_channel(address, options=options)
+    pem = tls_root_cert if isinstance(tls_root_cert, bytes) else Path(tls_root_cert).read_bytes()
+    credentials = grpc.ssl_channel_credentials(root_certificates=pem)
+    return grpc.secure_channel(address, credentials, options=options)
+
+
+def resolve_token(token: str | None) -> str | None:
+    """The given token, else ``$MILLION_ENV_TOKEN``, else none."""
+    return token if token is not None else (os.environ.get(TOKEN_ENV_VAR) or None)
 
 
 class _RemoteBatch:
@@ -40,15 +64,19 @@ class _RemoteBatch:
         autoreset_mode: int,
         kwargs: dict[str, Any],
         timeout: float | None,
+        token: str | None,
+        tls_root_cert: str | Path | bytes | None,
     ) -> None:
         self._timeout = timeout
-        self._channel = grpc.insecure_channel(address)
+        self._metadata = bearer_metadata(resolve_token(token))
+        self._channel = open_channel(address, tls_root_cert)
         self._stub = env_pb2_grpc.EnvServiceStub(self._channel)
         self.handle: str | None = None
         try:
-            self._stub.Handshake(
+            shook = self._stub.Handshake(
                 env_pb2.HandshakeRequest(client_version=API_VERSION, client_name=CLIENT_NAME),
                 timeout=timeout,
+                metadata=self._metadata,
             )
             made = self._stub.Make(
                 env_pb2.MakeRequest(
@@ -58,12 +86,15 @@ class _RemoteBatch:
                     autoreset_mode=autoreset_mode,
                 ),
                 timeout=None if timeout is None else max(timeout, MAKE_TIMEOUT_S),
+                metadata=self._metadata,
             )
         except BaseException:
             self._channel.close()
             raise
         self.handle = made.handle
         self.spec = made.spec
+        #: Optional server features from the handshake, e.g. {"render"}.
+        self.features = frozenset(shook.capabilities.features)
         self.observation_space = space_from_proto(made.spec.observation_space)
         self.action_space = space_from_proto(made.spec.action_space)
         self._action_dtype = leaf_dtype(self.action_space)
@@ -79,6 +110,7 @@ class _RemoteBatch:
                 options=python_to_values(options or {}),
             ),
             timeout=self._timeout,
+            metadata=self._metadata,
         )
         return decode_observations(reply.observation), decode_info(reply.info)
 
@@ -89,12 +121,33 @@ class _RemoteBatch:
         return self._stub.Step(
             env_pb2.StepRequest(handle=self.handle, action=encode_tensor(batch)),
             timeout=self._timeout,
+            metadata=self._metadata,
         )
+
+    def render(self, indices: Sequence[int], width: int, height: int, camera: str) -> np.ndarray:
+        """uint8 RGB frames [rows, height, width, 3] (row 0 at the top)."""
+        if "render" not in self.features:
+            raise RuntimeError("this env server does not render (no 'render' feature)")
+        reply = self._stub.Render(
+            env_pb2.RenderRequest(
+                handle=self.handle,
+                env_indices=list(indices),
+                width=width,
+                height=height,
+                camera=camera,
+            ),
+            timeout=self._timeout,
+        )
+        return decode_tensor(reply.frames)
 
     def close(self) -> None:
         if self.handle is not None:
             try:
-                self._stub.Close(env_pb2.CloseRequest(handle=self.handle), timeout=self._timeout)
+                self._stub.Close(
+                    env_pb2.CloseRequest(handle=self.handle),
+                    timeout=self._timeout,
+                    metadata=self._metadata,
+                )
             except grpc.RpcError as err:
                 if err.code() not in (grpc.StatusCode.NOT_FOUND, grpc.StatusCode.UNAVAILABLE):
                     raise
@@ -128,15 +181,33 @@ def _single_info(info: dict[str, Any], index: int = 0) -> dict[str, Any]:
 
 class RemoteEnv(gym.Env):
     """One environment served remotely, with single-env Gymnasium semantics (no
-    autoreset: after an episode ends, call reset)."""
+    autoreset: after an episode ends, call reset). `render_frame` returns an RGB picture
+    of the env when the server renders (feature "render").
+
+    ``token``: the server's shared token (default ``$MILLION_ENV_TOKEN``);
+    ``tls_root_cert``: the CA certificate (PEM path or bytes) to connect with TLS."""
 
     metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012
 
     def __init__(
-        self, address: str, env_id: str, *, timeout: float | None = 60.0, **kwargs: Any
+        self,
+        address: str,
+        env_id: str,
+        *,
+        timeout: float | None = 60.0,
+        token: str | None = None,
+        tls_root_cert: str | Path | bytes | None = None,
+        **kwargs: Any,
     ) -> None:
         self._remote = _RemoteBatch(
-            address, env_id, 1, env_pb2.AUTORESET_MODE_DISABLED, kwargs, timeout
+            address,
+            env_id,
+            1,
+            env_pb2.AUTORESET_MODE_DISABLED,
+            kwargs,
+            timeout,
+            token,
+            tls_root_cert,
         )
         self.observation_space = self._remote.observation_space
         self.action_space = self._remote.action_space
@@ -160,6 +231,10 @@ class RemoteEnv(gym.Env):
             _single_info(decode_info(reply.info)),
         )
 
+    def render_frame(self, width: int = 0, height: int = 0, camera: str = "") -> np.ndarray:
+        """uint8 RGB [height, width, 3], row 0 at the top; 0 / "" = the server's defaults."""
+        return self._remote.render([], width, height, camera)[0]
+
     def close(self) -> None:
         self._remote.close()
         super().close()
@@ -167,7 +242,8 @@ class RemoteEnv(gym.Env):
 
 class RemoteVectorEnv(gym.vector.VectorEnv):
     """A batch of environments served remotely; the server does the autoreset, in
-    the mode declared in ``metadata["autoreset_mode"]``."""
+    the mode declared in ``metadata["autoreset_mode"]``. ``token`` and
+    ``tls_root_cert`` as for ``RemoteEnv``."""
 
     def __init__(
         self,
@@ -177,11 +253,20 @@ class RemoteVectorEnv(gym.vector.VectorEnv):
         *,
         autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
         timeout: float | None = 60.0,
+        token: str | None = None,
+        tls_root_cert: str | Path | bytes | None = None,
         **kwargs: Any,
     ) -> None:
         mode = AutoresetMode(autoreset_mode)
         self._remote = _RemoteBatch(
-            address, env_id, num_envs, _MODE_TO_PROTO[mode], kwargs, timeout
+            address,
+            env_id,
+            num_envs,
+            _MODE_TO_PROTO[mode],
+            kwargs,
+            timeout,
+            token,
+            tls_root_cert,
         )
         self.num_envs = num_envs
         self.single_observation_space = self._remote.observation_space
@@ -242,6 +327,17 @@ class RemoteVectorEnv(gym.vector.VectorEnv):
             np.array(reply.truncated, dtype=bool),
             info,
         )
+
+    def render_frames(
+        self,
+        indices: Sequence[int] = (),
+        *,
+        width: int = 0,
+        height: int = 0,
+        camera: str = "",
+    ) -> np.ndarray:
+        """uint8 RGB [rows, height, width, 3] of envs `indices` (all when empty)."""
+        return self._remote.render(list(indices), width, height, camera)
 
     def close_extras(self, **kwargs: Any) -> None:
         self._remote.close()

@@ -32,3 +32,7 @@ def exhausted(message: str) -> ApiError:
 
 def internal(message: str) -> ApiError:
     return ApiError(grpc.StatusCode.INTERNAL, message)
+
+
+def unimplemented(message: str) -> ApiError:
+    return ApiError(grpc.StatusCode.UNIMPLEMENTED, message)

@@ -40,11 +40,17 @@ def server_command() -> list[str]:
 
 
 def wait_until_serving(
-    address: str, timeout_s: float = STARTUP_TIMEOUT_S, process: subprocess.Popen | None = None
+    address: str,
+    timeout_s: float = STARTUP_TIMEOUT_S,
+    process: subprocess.Popen | None = None,
+    tls_root_cert: Path | None = None,
 ) -> None:
-    """Polls grpc.health until SERVING; raises if ``process`` exits or time runs out."""
+    """Polls grpc.health until SERVING; raises if ``process`` exits or time runs out.
+    Health needs no token; a TLS server needs its CA (``tls_root_cert``)."""
+    from million_env.client import open_channel
+
     deadline = time.monotonic() + timeout_s
-    with grpc.insecure_channel(address) as channel:
+    with open_channel(address, tls_root_cert) as channel:
         health = health_pb2_grpc.HealthStub(channel)
         while True:
             if process is not None and process.poll() is not None:
@@ -63,18 +69,23 @@ def wait_until_serving(
 
 
 def start_server(
-    *extra_args: str, log: IO[str] | int = subprocess.DEVNULL
+    *extra_args: str,
+    log: IO[str] | int = subprocess.DEVNULL,
+    tls_root_cert: Path | None = None,
+    env: dict[str, str] | None = None,
 ) -> tuple[subprocess.Popen, str]:
     """Starts a server on a free loopback port and waits until it serves.
 
     Returns the process and its ``HOST:PORT``. ``extra_args`` go to the command
-    line (``--max-envs-total 8``, ...); the server's stderr goes to ``log``."""
+    line (``--max-envs-total 8``, ``--tls-cert``, ...); the server's stderr goes to
+    ``log``; ``tls_root_cert`` is the CA to check its health over TLS; ``env``
+    adds environment variables (``MILLION_ENV_TOKEN``)."""
     process = subprocess.Popen(
         [*server_command(), "--address", "127.0.0.1:0", "--log-level", "WARNING", *extra_args],
         stdout=subprocess.PIPE,
         stderr=log,
         text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
     )
     assert process.stdout is not None
     line = process.stdout.readline()
@@ -82,7 +93,7 @@ def start_server(
     try:
         if match is None:
             raise ServerStartError(f"env server did not report its address: {line!r}")
-        wait_until_serving(match.group(1), STARTUP_TIMEOUT_S, process)
+        wait_until_serving(match.group(1), STARTUP_TIMEOUT_S, process, tls_root_cert)
     except BaseException:
         stop_server(process)
         raise
@@ -99,9 +110,14 @@ def stop_server(process: subprocess.Popen) -> None:
 
 
 @contextmanager
-def running_server(*extra_args: str, log: IO[str] | int = subprocess.DEVNULL) -> Iterator[str]:
+def running_server(
+    *extra_args: str,
+    log: IO[str] | int = subprocess.DEVNULL,
+    tls_root_cert: Path | None = None,
+    env: dict[str, str] | None = None,
+) -> Iterator[str]:
     """``with running_server() as address:`` — a server for the block's duration."""
-    process, address = start_server(*extra_args, log=log)
+    process, address = start_server(*extra_args, log=log, tls_root_cert=tls_root_cert, env=env)
     try:
         yield address
     finally:

@@ -3,6 +3,13 @@
 Environment work (make, reset, step, close) runs in a thread pool so that a slow
 batch never blocks the event loop that serves other clients; the calls of one
 handle are serialised by that handle's lock.
+
+Who owns a handle: one made by unary ``Make`` lives until ``Close`` or the idle
+timeout (the client may use it from many calls and streams, and reconnect). One
+made by a ``make`` request inside a ``Session`` stream belongs to that stream and
+is closed when the stream ends for any reason (end of input, cancellation, a
+dropped connection, server shutdown), so a client that dies mid-stream frees its
+environments at once instead of after the idle timeout.
 """
 
 from __future__ import annotations
@@ -22,14 +29,20 @@ from million_env import __version__
 from million_env._proto import env_pb2, env_pb2_grpc
 from million_env.batch import AUTORESET_MODES, EnvBatch
 from million_env.errors import ApiError, exhausted, invalid, not_found, precondition
+from million_env.handlers import UndecodableRequest
 from million_env.registry import env_descriptions
+from million_env.stats import ServerStats
 from million_env.tensors import values_to_python
 
 _LOG = logging.getLogger(__name__)
 T = TypeVar("T")
 
 API_MAJOR = 1
-API_MINOR = 0
+# 1.1: Session carries make and close (stream-owned handles); GetStats counters
+# sessions_*, steps_per_s, errors.<CODE>; the Render RPC.
+API_MINOR = 1
+#: Optional features announced in the handshake (`Capabilities.features`).
+FEATURES = ("render",)
 
 
 @dataclass
@@ -53,13 +66,24 @@ def _status_number(code: grpc.StatusCode) -> int:
 
 
 class EnvService(env_pb2_grpc.EnvServiceServicer):
-    def __init__(self, limits: ServerLimits, executor: ThreadPoolExecutor) -> None:
+    def __init__(
+        self,
+        limits: ServerLimits,
+        executor: ThreadPoolExecutor,
+        stats: ServerStats | None = None,
+    ) -> None:
         self._limits = limits
         self._executor = executor
+        self.stats = stats or ServerStats()
         self._handles: dict[str, _Handle] = {}
         self._envs_reserved = 0
         self._steps_served = 0
         self._handles_reaped = 0
+        self._background: set[asyncio.Task[None]] = set()
+
+    @property
+    def steps_served(self) -> int:
+        return self._steps_served
 
     # -- plumbing -------------------------------------------------------------
 
@@ -70,10 +94,12 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         try:
             return await work
         except ApiError as err:
+            self.stats.error(err.code)
             await context.abort(err.code, err.message)
             raise  # abort raises; this line only satisfies type checkers
         except Exception as err:
-            _LOG.exception("unexpected error")
+            _LOG.exception("unexpected error", extra={"error_type": type(err).__name__})
+            self.stats.error(grpc.StatusCode.INTERNAL)
             await context.abort(grpc.StatusCode.INTERNAL, f"{type(err).__name__}: {err}")
             raise
 
@@ -116,7 +142,13 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             raise
         name = secrets.token_urlsafe(24)
         self._handles[name] = _Handle(batch)
-        _LOG.info("made %s x%d as %s…", request.env_id, num_envs, name[:6])
+        _LOG.info(
+            "made %s x%d as %s…",
+            request.env_id,
+            num_envs,
+            name[:6],
+            extra={"env_id": request.env_id, "num_envs": num_envs, "handle": name[:6]},
+        )
         return env_pb2.MakeResponse(handle=name, spec=batch.spec)
 
     async def _reset(self, request: env_pb2.ResetRequest) -> env_pb2.ResetResponse:
@@ -134,7 +166,18 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             self._handle(request.handle)
             response = await self._in_thread(lambda: handle.batch.step(request.action))
         self._steps_served += handle.batch.num_envs
+        self.stats.steps(handle.batch.num_envs)
         return response
+
+    async def _render(self, request: env_pb2.RenderRequest) -> env_pb2.RenderResponse:
+        handle = self._handle(request.handle)
+        async with handle.lock:
+            self._handle(request.handle)
+            return await self._in_thread(
+                lambda: handle.batch.render(
+                    list(request.env_indices), request.width, request.height, request.camera
+                )
+            )
 
     async def _close(self, name: str) -> None:
         handle = self._handles.pop(name, None)
@@ -156,14 +199,41 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             if now - handle.last_used > timeout and not handle.lock.locked()
         ]
         for name in idle:
-            _LOG.warning("closing handle %s… after %.0f s without calls", name[:6], timeout)
+            _LOG.warning(
+                "closing handle %s… after %.0f s without calls",
+                name[:6],
+                timeout,
+                extra={"handle": name[:6], "idle_timeout_s": timeout},
+            )
             await self._close(name)
         self._handles_reaped += len(idle)
         return len(idle)
 
     async def close_all(self) -> None:
-        for name in list(self._handles):
-            await self._close(name)
+        # A stream's own cleanup may close some of these concurrently.
+        await self._release(set(self._handles))
+
+    def _spawn(self, work: Awaitable[None]) -> asyncio.Task[None]:
+        """A task kept referenced until it finishes (asyncio holds tasks weakly)."""
+        task = asyncio.ensure_future(work)
+        self._background.add(task)
+        task.add_done_callback(self._background.discard)
+        return task
+
+    async def _release(self, owned: set[str]) -> int:
+        """Closes a stream's handles that are still open; idempotent (empties
+        ``owned``), so the stream's own cleanup and its done callback can both run it."""
+        freed = 0
+        while owned:
+            name = owned.pop()
+            if name not in self._handles:
+                continue  # closed by the client or the idle reaper
+            try:
+                await self._close(name)
+                freed += 1
+            except ApiError:
+                continue  # closed concurrently
+        return freed
 
     # -- RPCs -----------------------------------------------------------------
 
@@ -185,6 +255,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
                     max_envs_total=self._limits.max_envs_total,
                     autoreset_modes=list(AUTORESET_MODES),
                     streaming=True,
+                    features=list(FEATURES),
                 ),
             )
 
@@ -193,10 +264,13 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     async def ListEnvs(
         self, request: env_pb2.ListEnvsRequest, context: grpc.aio.ServicerContext
     ) -> env_pb2.ListEnvsResponse:
-        described = await self._in_thread(env_descriptions)
-        return env_pb2.ListEnvsResponse(
-            envs=[env_pb2.EnvIdInfo(env_id=k, description=v) for k, v in described.items()]
-        )
+        async def work() -> env_pb2.ListEnvsResponse:
+            described = await self._in_thread(env_descriptions)
+            return env_pb2.ListEnvsResponse(
+                envs=[env_pb2.EnvIdInfo(env_id=k, description=v) for k, v in described.items()]
+            )
+
+        return await self._unary(context, work())
 
     async def Make(
         self, request: env_pb2.MakeRequest, context: grpc.aio.ServicerContext
@@ -215,40 +289,89 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
 
     async def Session(
         self,
-        request_iterator: AsyncIterator[env_pb2.SessionRequest],
+        request_iterator: AsyncIterator[env_pb2.SessionRequest | UndecodableRequest],
         context: grpc.aio.ServicerContext,
     ) -> AsyncIterator[env_pb2.SessionResponse]:
-        async for request in request_iterator:
-            reply = env_pb2.SessionResponse(request_id=request.request_id)
-            kind = request.WhichOneof("request")
-            try:
-                if kind == "reset":
-                    reply.reset.CopyFrom(await self._reset(request.reset))
-                elif kind == "step":
-                    reply.step.CopyFrom(await self._step(request.step))
-                else:
-                    raise invalid("a SessionRequest must carry reset or step")
-            except ApiError as err:
-                reply.ClearField("response")
-                reply.error.CopyFrom(
-                    env_pb2.Error(code=_status_number(err.code), message=err.message)
+        owned: set[str] = set()
+        self.stats.session_opened()
+        finishing: asyncio.Task[None] | None = None
+
+        async def finish() -> None:
+            freed = await self._release(owned)
+            if freed:
+                _LOG.info("session ended; closed its %d handle(s)", freed, extra={"freed": freed})
+            self.stats.session_ended(freed)
+
+        # grpc does not always resume the generator when a call is cancelled (it
+        # may be parked in grpc's own write), so the call's done callback frees
+        # the handles too; both share one task, so it runs once.
+        def start_finish(_context: Any = None) -> asyncio.Task[None]:
+            nonlocal finishing
+            if finishing is None:
+                finishing = self._spawn(finish())
+            return finishing
+
+        context.add_done_callback(start_finish)
+        try:
+            async for request in request_iterator:
+                yield await self._session_reply(request, owned)
+        finally:
+            await asyncio.shield(start_finish())
+
+    async def _session_reply(
+        self, request: env_pb2.SessionRequest | UndecodableRequest, owned: set[str]
+    ) -> env_pb2.SessionResponse:
+        if isinstance(request, UndecodableRequest):
+            self.stats.error(grpc.StatusCode.INVALID_ARGUMENT)
+            return env_pb2.SessionResponse(
+                error=env_pb2.Error(
+                    code=_status_number(grpc.StatusCode.INVALID_ARGUMENT),
+                    message=request.describe(),
                 )
-            except Exception as err:
-                _LOG.exception("unexpected error in a Session request")
-                reply.ClearField("response")
-                reply.error.CopyFrom(
-                    env_pb2.Error(
-                        code=_status_number(grpc.StatusCode.INTERNAL),
-                        message=f"{type(err).__name__}: {err}",
-                    )
+            )
+        reply = env_pb2.SessionResponse(request_id=request.request_id)
+        kind = request.WhichOneof("request")
+        try:
+            if kind == "reset":
+                reply.reset.CopyFrom(await self._reset(request.reset))
+            elif kind == "step":
+                reply.step.CopyFrom(await self._step(request.step))
+            elif kind == "make":
+                made = await self._make(request.make)
+                owned.add(made.handle)
+                reply.make.CopyFrom(made)
+            elif kind == "close":
+                await self._close(request.close.handle)
+                owned.discard(request.close.handle)
+                reply.close.SetInParent()
+            else:
+                raise invalid("a SessionRequest must carry make, reset, step or close")
+        except ApiError as err:
+            self.stats.error(err.code)
+            reply.ClearField("response")
+            reply.error.CopyFrom(env_pb2.Error(code=_status_number(err.code), message=err.message))
+        except Exception as err:
+            _LOG.exception("unexpected error in a Session request")
+            self.stats.error(grpc.StatusCode.INTERNAL)
+            reply.ClearField("response")
+            reply.error.CopyFrom(
+                env_pb2.Error(
+                    code=_status_number(grpc.StatusCode.INTERNAL),
+                    message=f"{type(err).__name__}: {err}",
                 )
-            yield reply
+            )
+        return reply
 
     async def Close(
         self, request: env_pb2.CloseRequest, context: grpc.aio.ServicerContext
     ) -> env_pb2.CloseResponse:
         await self._unary(context, self._close(request.handle))
         return env_pb2.CloseResponse()
+
+    async def Render(
+        self, request: env_pb2.RenderRequest, context: grpc.aio.ServicerContext
+    ) -> env_pb2.RenderResponse:
+        return await self._unary(context, self._render(request))
 
     async def GetStats(
         self, request: env_pb2.GetStatsRequest, context: grpc.aio.ServicerContext
@@ -261,5 +384,6 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             "steps_served": float(self._steps_served),
             "handles_closed_idle": float(self._handles_reaped),
         }
+        counters.update(self.stats.counters())
         counters.update(protocol_stats())
         return env_pb2.GetStatsResponse(counters=counters)

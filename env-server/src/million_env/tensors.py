@@ -6,6 +6,7 @@ proto field per element.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -78,7 +79,9 @@ def decode_tensor(tensor: env_pb2.Tensor) -> np.ndarray:
     shape = tuple(int(d) for d in tensor.shape)
     if any(d < 0 for d in shape):
         raise invalid(f"tensor shape {list(shape)} has a negative dimension")
-    count = int(np.prod(shape, dtype=np.int64))
+    # Python integers: np.prod in int64 would wrap around for huge shapes and let
+    # a tensor of 2**32 x 2**32 elements pass as 0 elements.
+    count = math.prod(shape)
     if tensor.dtype == env_pb2.DTYPE_STRING:
         if len(tensor.strings) != count:
             raise invalid(

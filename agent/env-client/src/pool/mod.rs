@@ -10,10 +10,17 @@
 //! When a server restarts mid-run, the affected envs are rebuilt and their cut
 //! episodes reported as truncated (`cut` set, the last observation as final
 //! observation), never glued to the new episodes.
+//!
+//! A server target that resolves to several addresses (a scaled Docker service, a
+//! Kubernetes headless Service) counts as one server per address; a lost server's
+//! target is resolved again, so its envs move to a live (or new) replica.
 mod layout;
+mod resolve;
 mod shard;
 
+use std::collections::HashMap;
 use std::ops::Range;
+use std::sync::Arc;
 
 use futures::future::try_join_all;
 
@@ -25,12 +32,14 @@ use crate::reply::{ResetResult, StepResult};
 use crate::space::{AutoresetMode, EnvSpec};
 use crate::value::Kwargs;
 pub use layout::{Block, layout, split_even};
+pub use resolve::{DnsResolver, Resolve, ResolveFuture};
 use shard::{MakeArgs, Shard, spec_difference};
 
 /// What to run and where.
 #[derive(Clone, Debug)]
 pub struct PoolConfig {
-    /// `host:port` of every env server to use (at least one).
+    /// Every env server to use (at least one): `host:port` or a URI. A name that
+    /// resolves to several addresses stands for all of them (one server each).
     pub servers: Vec<String>,
     pub env_id: String,
     pub kwargs: Kwargs,
@@ -47,6 +56,8 @@ pub struct PoolConfig {
     pub client: ClientConfig,
     /// Full reconnect + re-make attempts for one lost server before giving up.
     pub recovery_attempts: u32,
+    /// Turns `servers` into replica addresses, at connect and after a loss.
+    pub resolver: Arc<dyn Resolve>,
 }
 
 impl PoolConfig {
@@ -61,6 +72,7 @@ impl PoolConfig {
             autoreset: AutoresetMode::SameStep,
             client: ClientConfig::default(),
             recovery_attempts: 3,
+            resolver: Arc::new(DnsResolver),
         }
     }
 
@@ -184,12 +196,26 @@ impl EnvPool {
             autoreset: config.autoreset,
             client: config.client.clone(),
             recovery_attempts: config.recovery_attempts,
+            resolver: config.resolver.clone(),
         };
-        let plan = layout(config.num_envs, config.groups, config.servers.len());
+        // (target, address) of every replica, each once.
+        let mut servers: Vec<(String, String)> = Vec::new();
+        for target in &config.servers {
+            let addrs =
+                resolve::resolve_with_retry(config.resolver.as_ref(), target, &config.client.retry)
+                    .await?;
+            for addr in addrs {
+                if !servers.iter().any(|(_, a)| *a == addr) {
+                    servers.push((target.clone(), addr));
+                }
+            }
+        }
+        let plan = layout(config.num_envs, config.groups, servers.len());
         let opened = try_join_all(plan.iter().flat_map(|(_, blocks)| {
-            blocks
-                .iter()
-                .map(|b| Shard::open(&config.servers[b.server], b.envs.clone(), &args))
+            blocks.iter().map(|b| {
+                let (target, addr) = &servers[b.server];
+                Shard::open(target, addr, b.envs.clone(), &args)
+            })
         }))
         .await?;
         let mut opened = opened.into_iter();
@@ -228,7 +254,7 @@ impl EnvPool {
             env_id = %config.env_id,
             num_envs = config.num_envs,
             groups = config.groups,
-            servers = config.servers.len(),
+            servers = %servers.iter().map(|(_, a)| a.as_str()).collect::<Vec<_>>().join(" "),
             "env pool ready"
         );
         Ok(EnvPool {
@@ -262,6 +288,27 @@ impl EnvPool {
         self.stats
     }
 
+    /// The server address of every env, by global index (where each env runs now).
+    pub fn env_addresses(&self) -> Vec<String> {
+        let mut out = vec![String::new(); self.num_envs()];
+        for shard in self.groups.iter().flat_map(|g| &g.shards) {
+            for i in shard.envs.clone() {
+                out[i] = shard.addr.clone();
+            }
+        }
+        out
+    }
+
+    /// Rows of this pool on each server address (`taken`: a group's shards held
+    /// outside `groups` while it is received).
+    fn load(&self, taken: &[Shard]) -> HashMap<String, usize> {
+        let mut load = HashMap::new();
+        for shard in self.groups.iter().flat_map(|g| &g.shards).chain(taken) {
+            *load.entry(shard.addr.clone()).or_default() += shard.rows();
+        }
+        load
+    }
+
     fn group_mut(&mut self, g: usize) -> Result<&mut Group> {
         let n = self.groups.len();
         self.groups
@@ -283,6 +330,13 @@ impl EnvPool {
     pub async fn reset(&mut self, g: usize) -> Result<ResetBatch> {
         self.send_reset(g)?;
         self.recv_reset(g).await
+    }
+
+    /// Resets every env of group `g` with the seeds of its first reset, so the episodes
+    /// begin exactly as they began then (evaluation scores the same episodes each time).
+    pub async fn reset_to_first_episodes(&mut self, g: usize) -> Result<ResetBatch> {
+        self.group_mut(g)?.seeded = false;
+        self.reset(g).await
     }
 
     /// Resets every group; one batch per group.
@@ -339,13 +393,17 @@ impl EnvPool {
         let mut parts = Vec::new();
         let mut first_err = None;
         let shards = std::mem::take(&mut self.groups[g].shards);
+        let mut load = self.load(&shards);
         let mut kept = Vec::with_capacity(shards.len());
         for mut shard in shards {
             match shard.recv_reset().await {
                 Ok(r) => parts.push(r),
                 Err(e) if e.is_connection_loss() => {
                     let seeds = self.seeds(shard.envs.clone(), shard.restarts + 1);
-                    match shard.recover(&self.args, &self.spec, &seeds, &e).await {
+                    match shard
+                        .recover(&self.args, &self.spec, &seeds, &e, &mut load)
+                        .await
+                    {
                         Ok((r, _)) => {
                             self.stats.rebuilds += 1;
                             parts.push(r);
@@ -429,13 +487,17 @@ impl EnvPool {
         let mut parts: Vec<(StepResult, bool)> = Vec::new();
         let mut first_err = None;
         let shards = std::mem::take(&mut self.groups[g].shards);
+        let mut load = self.load(&shards);
         let mut kept = Vec::with_capacity(shards.len());
         for mut shard in shards {
             match shard.recv_step().await {
                 Ok(s) => parts.push((s, false)),
                 Err(e) if e.is_connection_loss() => {
                     let seeds = self.seeds(shard.envs.clone(), shard.restarts + 1);
-                    match shard.recover(&self.args, &self.spec, &seeds, &e).await {
+                    match shard
+                        .recover(&self.args, &self.spec, &seeds, &e, &mut load)
+                        .await
+                    {
                         Ok((reset, ending)) => {
                             self.stats.rebuilds += 1;
                             self.stats.cut_episodes += shard.rows() as u64;
