@@ -14,15 +14,20 @@
 //!   [`algo::buffer::SegmentBatch`] for [`algo::buffer::SegmentBuffer::push_batch`].
 //! - Learning: `SegmentBuffer::sample` (throttled by the replay ratio) → `Learner::update`.
 //! - [`checkpoint::save`] / [`checkpoint::load`]: one atomic safetensors file.
+//! - Looking at a run: [`report`] (figures and report.md from run directories), [`video`]
+//!   (GIFs of deterministic episodes, frames from the env server's `Render`).
 pub use million_env as env;
 
 pub mod algo;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
+pub mod font;
 pub mod learner;
 pub mod metrics;
 pub mod model;
 pub mod optim;
+pub mod report;
 pub mod run_config;
 pub mod train;
+pub mod video;

@@ -121,6 +121,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
             let summary = rt.block_on(train(TrainOptions {
                 config: cfg,
                 servers: b.env_servers,
+                env_access: Default::default(),
                 run_dir: None,
                 resume: false,
                 progress: false,

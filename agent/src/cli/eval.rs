@@ -6,12 +6,14 @@ use clap::{Args, ValueEnum};
 use tch::nn::VarStore;
 
 use crate::checkpoint;
+use crate::cli::access::EnvAccessArgs;
 use crate::learner::Learner;
 use crate::model::Model;
 use crate::run_config::RunConfig;
 use crate::train::eval::{EvalReport, Evaluator};
 use crate::train::servers::{client_config, start_local_servers};
 use crate::train::session::{RUN_CONFIG_KEY, latest_checkpoint};
+use crate::video::{VideoOptions, record_split};
 
 #[derive(Debug, Clone, Copy, ValueEnum)]
 pub enum Split {
@@ -35,6 +37,22 @@ pub struct EvalArgs {
     /// host:port of an env server (repeatable); none = start local servers.
     #[arg(long = "env-server")]
     pub env_servers: Vec<String>,
+    #[command(flatten)]
+    pub access: EnvAccessArgs,
+    /// Instead of the statistics: one GIF per task of a deterministic episode, written to
+    /// DIR/<split>/<task>.gif (and the last frame as .png); needs a server that renders.
+    #[arg(long, value_name = "DIR")]
+    pub video: Option<PathBuf>,
+    /// Videos: render every k-th agent step of a trial.
+    #[arg(long, default_value_t = 2, value_name = "K")]
+    pub video_every: usize,
+    /// Videos: size of the rendered picture in pixels (square).
+    #[arg(long, default_value_t = 224, value_name = "PIXELS")]
+    pub video_size: u32,
+    /// Videos: camera name (Meta-World: corner, corner2, corner3, corner4, topview, ...);
+    /// default: the server's view.
+    #[arg(long, default_value = "")]
+    pub video_camera: String,
 }
 
 pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
@@ -67,7 +85,19 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
         })
         .collect();
     anyhow::ensure!(!splits.is_empty(), "the run config has no such eval split");
+    let env_access = a.access.resolve()?;
     let rt = super::runtime(cfg.runtime.io_threads)?;
+    if let Some(dir) = &a.video {
+        let opts = crate::video::VideoOptions {
+            every: a.video_every,
+            width: a.video_size,
+            height: a.video_size,
+            camera: a.video_camera.clone(),
+            ..Default::default()
+        };
+        let client = client_config(&cfg, &env_access);
+        return rt.block_on(write_videos(&a, &cfg, &model, splits, dir, &opts, client));
+    }
     let reports: Vec<EvalReport> = rt.block_on(async {
         let (_local, servers) = if a.env_servers.is_empty() {
             let local = start_local_servers(1).await?;
@@ -83,7 +113,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
                 split,
                 cfg.eval.episodes,
                 cfg.eval.seed,
-                client_config(&cfg),
+                client_config(&cfg, &env_access),
                 cfg.model.action_dim,
             )
             .await?;
@@ -110,6 +140,57 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
             println!("  {:<28} {:>6.3}", "mean", r.mean);
             println!("  {:<28} {:>6.3}", "first trials", r.first_trial);
         }
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `--video DIR`: one GIF per task of each split, on the first env server.
+async fn write_videos(
+    a: &EvalArgs,
+    cfg: &RunConfig,
+    model: &Model,
+    splits: Vec<crate::run_config::EvalSplit>,
+    dir: &std::path::Path,
+    opts: &VideoOptions,
+    client_config: million_env::ClientConfig,
+) -> anyhow::Result<ExitCode> {
+    let (_local, server) = if a.env_servers.is_empty() {
+        let local = start_local_servers(1).await?;
+        let addr = local[0].addr().to_owned();
+        (local, addr)
+    } else {
+        (vec![], a.env_servers[0].clone())
+    };
+    let client = million_env::EnvClient::connect(&server, client_config).await?;
+    let mut all = vec![];
+    for split in splits {
+        let out = dir.join(&split.name);
+        let videos = record_split(&client, &split, model, cfg.eval.seed, opts, &out).await?;
+        for v in &videos {
+            let outcomes: Vec<&str> = v
+                .trials
+                .iter()
+                .map(|&s| if s { "success" } else { "failed" })
+                .collect();
+            if !a.json {
+                println!(
+                    "{}  {} frames, {} agent steps, {:.1} s  [{}]",
+                    v.path.display(),
+                    v.frames,
+                    v.agent_steps,
+                    v.seconds,
+                    outcomes.join(", ")
+                );
+            }
+        }
+        all.push((split.name.clone(), videos));
+    }
+    if a.json {
+        let json: serde_json::Map<String, serde_json::Value> = all
+            .into_iter()
+            .map(|(k, v)| Ok((k, serde_json::to_value(v)?)))
+            .collect::<anyhow::Result<_>>()?;
+        println!("{}", serde_json::to_string_pretty(&json)?);
     }
     Ok(ExitCode::SUCCESS)
 }

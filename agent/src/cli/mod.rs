@@ -1,8 +1,10 @@
-//! The `million` command line: `train`, `eval`, `bench`, `env-check`.
+//! The `million` command line: `train`, `eval`, `report`, `bench`, `env-check`.
 
+mod access;
 mod bench;
 mod env_check;
 mod eval;
+mod report;
 mod train;
 
 use std::process::ExitCode;
@@ -22,6 +24,8 @@ pub enum Command {
     Train(train::TrainArgs),
     /// Evaluate a checkpoint deterministically (per-task trial success).
     Eval(eval::EvalArgs),
+    /// Figures (PNG) and report.md from run directories: learning curves, per-task success.
+    Report(report::ReportArgs),
     /// Throughput benchmarks.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -51,6 +55,7 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
     match cli.command {
         Command::Train(a) => train::run(a),
         Command::Eval(a) => eval::run(a),
+        Command::Report(a) => report::run(a),
         Command::Bench(b) => bench::run(b),
         Command::EnvCheck(a) => env_check::run(a),
     }

@@ -14,6 +14,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from million_env.errors import precondition
 from million_env.info_fields import METADATA_KEY, METAWORLD_INFO_FIELDS, InfoField
 from million_env.metaworld_tasks import (
     ALL_TASK_NAMES,
@@ -23,6 +24,7 @@ from million_env.metaworld_tasks import (
     MetaWorldTaskSampler,
     load_benchmark,
 )
+from million_env.rendering import render_metaworld
 
 MAX_PATH_LENGTH = 500
 ID_PREFIX = "metaworld/"
@@ -102,6 +104,12 @@ class MetaWorldSplitEnv(gym.Env):
             raise gym.error.ResetNeeded("call reset before step")
         obs, reward, terminated, truncated, info = self._current.step(action)
         return obs, float(reward), bool(terminated), bool(truncated), {**info, **self._task_info}
+
+    def render_rgb(self, width: int, height: int, camera: str, cache: Any) -> np.ndarray:
+        """The current task's scene (`million_env.rendering.render_metaworld`)."""
+        if self._current is None:
+            raise precondition("render needs a reset first")
+        return render_metaworld(self._current, width, height, camera, cache)
 
     def close(self) -> None:
         self._sampler.close()

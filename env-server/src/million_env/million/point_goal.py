@@ -19,7 +19,10 @@ import gymnasium
 import numpy as np
 import numpy.typing as npt
 
+from million_env.errors import invalid
+from million_env.metaworld_tasks import parse_task_order
 from million_env.million.task_source import STATE_DIM
+from million_env.rendering import blank, draw_disc
 
 #: Distance of every goal from the origin.
 GOAL_RADIUS = 0.6
@@ -84,13 +87,34 @@ class PointGoalTask:
     def goal(self) -> npt.NDArray[np.float64]:
         return self._goal.copy()
 
+    def render(self, width: int, height: int, camera: str, cache: object) -> npt.NDArray[np.uint8]:
+        """A top view of the arena, north up: the goal circle (grey), the goal's success
+        disc (green) and the point (blue). There are no cameras (`camera` must be "")."""
+        if camera:
+            raise invalid("PointGoal is drawn from above and has no cameras; leave camera empty")
+        frame = blank(width, height, (250, 250, 250))
+        scale_x, scale_y = width / (2 * ARENA), height / (2 * ARENA)
+
+        def pixel(x: float, y: float) -> tuple[float, float]:
+            return (x + ARENA) * scale_x, (ARENA - y) * scale_y
+
+        cx, cy = pixel(0.0, 0.0)
+        draw_disc(frame, cx, cy, GOAL_RADIUS * min(scale_x, scale_y), (200, 200, 200), ring=True)
+        gx, gy = pixel(self._goal[0], self._goal[1])
+        draw_disc(frame, gx, gy, SUCCESS_DISTANCE * min(scale_x, scale_y), (60, 170, 80))
+        px, py = pixel(self._pos[0], self._pos[1])
+        draw_disc(frame, px, py, max(3.0, 0.04 * min(scale_x, scale_y)), (40, 90, 200))
+        return frame
+
 
 class PointGoalSource:
     """Samples one of `goal_names` (goal k at angle 2*pi*k/len(goal_names))."""
 
-    def __init__(self, goal_names: tuple[str, ...]) -> None:
+    def __init__(self, goal_names: tuple[str, ...], task_order: str = "random") -> None:
         if len(goal_names) < 2:
             raise ValueError("PointGoal needs at least two goals")
+        self._cycle = parse_task_order(task_order)
+        self._next_goal = 0
         self._names = goal_names
         angles = [2.0 * math.pi * k / len(goal_names) for k in range(len(goal_names))]
         self._goals = [
@@ -119,9 +143,14 @@ class PointGoalSource:
 
     def seed(self, seed: int) -> None:
         self._rng = np.random.default_rng(seed)
+        self._next_goal = seed % len(self._names)
 
     def sample(self) -> PointGoalTask:
-        k = int(self._rng.integers(len(self._names)))
+        if self._cycle:
+            k = self._next_goal
+            self._next_goal = (k + 1) % len(self._names)
+        else:
+            k = int(self._rng.integers(len(self._names)))
         return PointGoalTask(self._names[k], self._goals[k], self._rng)
 
     def close(self) -> None:

@@ -24,6 +24,7 @@ import gymnasium
 import numpy as np
 import numpy.typing as npt
 
+from million_env.errors import precondition, unimplemented
 from million_env.info_fields import InfoField
 from million_env.million.glove import EMBED_DIM
 from million_env.million.instructions import EncodedInstruction, InstructionEncoder
@@ -214,6 +215,16 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
     def close(self) -> None:
         self._source.close()
         super().close()
+
+    def render_rgb(self, width: int, height: int, camera: str, cache: Any) -> Any:
+        """An RGB frame of the current trial's MDP (`million_env.rendering`): during an
+        instruction phase, the reset state the next trial starts from."""
+        if self._task is None:
+            raise precondition("render needs a reset first")
+        render = getattr(self._task, "render", None)
+        if render is None:
+            raise unimplemented(f"tasks of {type(self._source).__name__} cannot render")
+        return render(width, height, camera, cache)
 
     @property
     def task_names(self) -> tuple[str, ...]:
