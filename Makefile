@@ -1,7 +1,8 @@
 # MILLION: two commands do everything on a fresh machine.
 #   make test    set up .venv, build the Rust workspace, run every test
 #   make train   set up, build, and run the main training job (CONFIG=...)
-# Other targets: setup, build, serve, lint, bench, clean.
+#   make test-docker  images, 2 env-server containers + the agent, one replica killed
+# Other targets: setup, build, serve, lint, bench, tools, clean.
 
 SHELL := /bin/bash
 .SHELLFLAGS := -eu -o pipefail -c
@@ -22,7 +23,7 @@ ADDRESS ?= 127.0.0.1:50051
 PROTO := proto/million/env/v1/env.proto
 PY_PROTO_DIR := env-server/src/million_env/_proto
 
-.PHONY: setup build test test-python test-rust lint serve train bench clean
+.PHONY: setup build test test-python test-rust test-docker lint serve train bench clean tools
 
 ## Set-up: pinned Python packages in .venv, the env server installed editable,
 ## Python code generated from the proto.
@@ -48,14 +49,20 @@ build: setup
 test: build test-python test-rust
 
 test-python: setup
-	$(PYTHON) -m pytest -q env-server/tests tests/contract
+	$(PYTHON) -m pytest -q env-server/tests tests/contract tests/deploy
 
 test-rust: build
 	cargo nextest run --cargo-profile $(CARGO_PROFILE) --workspace --no-fail-fast
 
+## Containers for real (needs a Docker engine): local base images, the env-server image,
+## the agent image from the binary `make build` made, then docker/compose.yaml with 2
+## env-server replicas trains configs/quickstart.toml while one replica is killed.
+test-docker: build
+	docker/test-docker.sh target/$(CARGO_PROFILE)/million
+
 lint: setup
-	$(PYTHON) -m ruff check env-server tests
-	$(PYTHON) -m ruff format --check env-server tests
+	$(PYTHON) -m ruff check env-server tests docker
+	$(PYTHON) -m ruff format --check env-server tests docker
 	cargo fmt --all --check
 	cargo clippy --profile $(CARGO_PROFILE) --workspace --all-targets -- -D warnings
 
@@ -64,6 +71,10 @@ serve: setup
 
 train: build
 	target/$(CARGO_PROFILE)/million train --config $(CONFIG)
+
+## Learning tools (tools/*.py: the PPO yardstick, curve plots); see LEARNING.md.
+tools: setup
+	$(PYTHON) -m pip install --quiet --disable-pip-version-check -r requirements/tools.lock
 
 clean:
 	cargo clean
