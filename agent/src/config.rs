@@ -125,6 +125,13 @@ pub struct PopArtConfig {
     pub beta: f64,
     pub sigma_min: f64,
     pub sigma_max: f64,
+    /// Debiased moments [S]: task k's step size is max(β, 1/n_k) after its n_k-th update, so
+    /// the first update sets μ, σ to the batch's moments and the statistics are a plain
+    /// running average until 1/n_k falls below β. With β = 1e-4 and undebiased moments
+    /// (the paper), σ starts at 1 and needs ~10⁴ updates to reach the returns' scale, while
+    /// the normalised advantages are too large by that factor; a run of a few thousand
+    /// updates never gets there.
+    pub debias: bool,
 }
 
 impl Default for PopArtConfig {
@@ -134,6 +141,7 @@ impl Default for PopArtConfig {
             beta: 1e-4,
             sigma_min: 1e-2,
             sigma_max: 1e6,
+            debias: false,
         }
     }
 }
@@ -155,6 +163,43 @@ pub struct VmpoConfig {
     pub advantage_clip: f64,
     /// Fraction of valid steps kept for the policy loss (V-MPO: the top half).
     pub top_fraction: f64,
+    /// How η, α_μ, α_Σ are kept positive: "clamp" (the original: the raw value, clamped at
+    /// `min_multiplier` after each step) or "log" [S] (the variable is log η, so a step
+    /// changes the multiplier by a factor, whatever its scale).
+    pub multiplier_form: MultiplierForm,
+    /// Adam step size of the multipliers; `None` = `optim.lr` (the original: one Adam over
+    /// everything). With lr 1e-4 and clamp form a multiplier moves ~1e-4 per update, so in a
+    /// few thousand updates η cannot follow the advantages' scale and the KL bounds are not
+    /// enforced (ALGORITHM.md §4.8 leaves the form open).
+    pub multiplier_lr: Option<f64>,
+    /// The policy the KL terms measure from: "behaviour" (the original: the distribution
+    /// stored with each segment at acting time) or "target" (V-MPO's π_old [V]: a copy of the
+    /// network, refreshed every `buffer.target_period` updates, evaluated on the batch). The
+    /// FIFO buffer mixes segments of several actor versions, so no policy can be within a
+    /// small ε of all their stored distributions at once: with enforced multipliers the
+    /// behaviour form's constraint is infeasible and α grows without bound (LEARNING.md).
+    pub kl_reference: KlReference,
+    /// λ of the λ-return targets: 1 = the original's n-step returns to the segment's end;
+    /// below 1 the advantages become GAE(λ), with less variance from later actions [S].
+    pub lambda: f64,
+}
+
+/// What the decoupled KL terms compare the learned policy with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum KlReference {
+    #[default]
+    Behaviour,
+    Target,
+}
+
+/// Parameterisation of the Lagrange multipliers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum MultiplierForm {
+    #[default]
+    Clamp,
+    Log,
 }
 
 impl Default for VmpoConfig {
@@ -170,6 +215,10 @@ impl Default for VmpoConfig {
             min_multiplier: 1e-8,
             advantage_clip: 40.0,
             top_fraction: 0.5,
+            multiplier_form: MultiplierForm::Clamp,
+            multiplier_lr: None,
+            kl_reference: KlReference::Behaviour,
+            lambda: 1.0,
         }
     }
 }
@@ -333,6 +382,9 @@ impl AgentConfig {
         if !(0.0..=1.0).contains(&v.gamma) {
             return bad("vmpo.gamma must be in [0, 1]".into());
         }
+        if !(0.0..=1.0).contains(&v.lambda) {
+            return bad("vmpo.lambda must be in [0, 1]".into());
+        }
         if v.top_fraction <= 0.0 || v.top_fraction > 1.0 {
             return bad("vmpo.top_fraction must be in (0, 1]".into());
         }
@@ -363,6 +415,9 @@ impl AgentConfig {
         }
         if self.optim.lr <= 0.0 {
             return bad("optim.lr must be > 0".into());
+        }
+        if v.multiplier_lr.is_some_and(|lr| lr <= 0.0) {
+            return bad("vmpo.multiplier_lr must be > 0".into());
         }
         Ok(())
     }

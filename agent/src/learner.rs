@@ -8,19 +8,75 @@ use tch::{Device, Kind, Tensor};
 use crate::algo::buffer::SegmentBatch;
 use crate::algo::returns::bootstrapped_returns;
 use crate::algo::vmpo;
-use crate::config::AgentConfig;
+use crate::config::{AgentConfig, KlReference, MultiplierForm, VmpoConfig};
 use crate::model::Model;
 use crate::model::policy::gaussian_log_prob;
 use crate::optim::Adam;
 
-/// The Lagrange multipliers η, α_μ, α_Σ: trainable scalars, projected back to at least
-/// `vmpo.min_multiplier` after every step.
+/// The Lagrange multipliers η, α_μ, α_Σ as trainable scalars. In clamp form the variables are
+/// the multipliers, projected back to at least `vmpo.min_multiplier` after every step; in log
+/// form they are the logarithms, so the multipliers are positive by construction.
 #[derive(Debug)]
 pub struct Multipliers {
-    pub eta: Tensor,
-    pub alpha_mu: Tensor,
-    pub alpha_sigma: Tensor,
+    form: MultiplierForm,
+    raw_eta: Tensor,
+    raw_alpha_mu: Tensor,
+    raw_alpha_sigma: Tensor,
 }
+
+impl Multipliers {
+    fn new(p: &tch::nn::Path, v: &VmpoConfig) -> Self {
+        let form = v.multiplier_form;
+        let scalar = |name: &str, init: f64| {
+            let raw = match form {
+                MultiplierForm::Clamp => init,
+                MultiplierForm::Log => init.ln(),
+            };
+            p.var(name, &[], tch::nn::Init::Const(raw))
+        };
+        Self {
+            form,
+            raw_eta: scalar("eta", v.init_eta),
+            raw_alpha_mu: scalar("alpha_mu", v.init_alpha_mu),
+            raw_alpha_sigma: scalar("alpha_sigma", v.init_alpha_sigma),
+        }
+    }
+
+    fn value(&self, raw: &Tensor) -> Tensor {
+        match self.form {
+            MultiplierForm::Clamp => raw.shallow_clone(),
+            MultiplierForm::Log => raw.exp(),
+        }
+    }
+
+    /// η (differentiable with respect to its variable).
+    pub fn eta(&self) -> Tensor {
+        self.value(&self.raw_eta)
+    }
+
+    pub fn alpha_mu(&self) -> Tensor {
+        self.value(&self.raw_alpha_mu)
+    }
+
+    pub fn alpha_sigma(&self) -> Tensor {
+        self.value(&self.raw_alpha_sigma)
+    }
+
+    /// Keeps clamp-form multipliers at least `floor` after a step (log form needs nothing).
+    fn project(&self, floor: f64) {
+        if self.form == MultiplierForm::Clamp {
+            tch::no_grad(|| {
+                for t in [&self.raw_eta, &self.raw_alpha_mu, &self.raw_alpha_sigma] {
+                    let _ = t.shallow_clone().clamp_min_(floor);
+                }
+            });
+        }
+    }
+}
+
+/// Name of the target network's part of the store.
+const TARGET: &str = "target";
+const TARGET_PREFIX: &str = "target.";
 
 /// Scalars of one update, for logs.
 #[derive(Debug, Clone, Serialize, PartialEq)]
@@ -51,12 +107,17 @@ pub enum LearnerError {
     Shape(String),
     #[error("non-finite loss ({0}); the update was skipped")]
     NonFinite(f64),
+    #[error("non-finite gradient (loss {0}); the update was skipped")]
+    NonFiniteGradient(f64),
 }
 
 pub struct Learner {
     cfg: AgentConfig,
     vs: VarStore,
     model: Model,
+    /// V-MPO's π_old when `vmpo.kl_reference = "target"`: a frozen copy of the network under
+    /// `target.` in the same store (so checkpoints keep it), synced every T_target updates.
+    target: Option<Model>,
     multipliers: Multipliers,
     adam: Adam,
     updates: u64,
@@ -66,22 +127,44 @@ impl Learner {
     pub fn new(cfg: AgentConfig, device: Device) -> Self {
         let vs = VarStore::new(device);
         let model = Model::new(&vs.root(), &cfg.model, &cfg.popart);
-        let p = vs.root() / "vmpo";
-        let scalar = |name: &str, v: f64| p.var(name, &[], tch::nn::Init::Const(v));
-        let multipliers = Multipliers {
-            eta: scalar("eta", cfg.vmpo.init_eta),
-            alpha_mu: scalar("alpha_mu", cfg.vmpo.init_alpha_mu),
-            alpha_sigma: scalar("alpha_sigma", cfg.vmpo.init_alpha_sigma),
-        };
-        let adam = Adam::new(&vs, cfg.optim.clone());
-        Self {
+        let multipliers = Multipliers::new(&(vs.root() / "vmpo"), &cfg.vmpo);
+        let target = (cfg.vmpo.kl_reference == KlReference::Target)
+            .then(|| Model::new(&(vs.root() / TARGET), &cfg.model, &cfg.popart));
+        for (name, var) in vs.variables() {
+            if name.starts_with(TARGET_PREFIX) {
+                let _ = var.set_requires_grad(false);
+            }
+        }
+        let mut adam = Adam::new(&vs, cfg.optim.clone());
+        if let Some(lr) = cfg.vmpo.multiplier_lr {
+            adam.set_lr_for_prefix("vmpo.", lr);
+        }
+        let learner = Self {
             cfg,
             vs,
             model,
+            target,
             multipliers,
             adam,
             updates: 0,
+        };
+        learner.sync_target();
+        learner
+    }
+
+    /// Copies the network into the target copy (when there is one).
+    fn sync_target(&self) {
+        if self.target.is_none() {
+            return;
         }
+        let vars = self.vs.variables();
+        tch::no_grad(|| {
+            for (name, var) in &vars {
+                if let Some(source) = name.strip_prefix(TARGET_PREFIX) {
+                    var.shallow_clone().copy_(&vars[source]);
+                }
+            }
+        });
     }
 
     pub fn config(&self) -> &AgentConfig {
@@ -125,6 +208,23 @@ impl Learner {
         tch::no_grad(|| actor.copy(&self.vs))
     }
 
+    /// One V-MPO update on `b` segments of `T` steps. Read top to bottom:
+    ///
+    /// ```text
+    ///  stored at segment start          the segment (T steps)
+    ///  memory M_l, per layer, m rows    t = 0   1   …   T-2   T-1
+    ///  ────────────────────────────     ─────────────────────────
+    ///  keys of step t:  [sg(M_l) ; x̃_0 … x̃_t], minus every key before the start of t's
+    ///                   own episode (episode_start), so no step attends across episodes
+    ///  returns:         G_t = r_t + γ (1 − terminated_t) [(1 − λ) V(s_{t+1}) + λ G_{t+1}],
+    ///                   G_{T-1} := V(s_{T-1})   (λ = 1: the original's n-step returns)
+    ///                   a truncated step t (final obs not in the segment): G_t := V(s_t)
+    ///  value_mask:      every step but T-1 and truncated ones  (they only bootstrap)
+    ///  policy_mask:     value_mask minus instruction-phase steps (no reward, action ignored)
+    /// ```
+    ///
+    /// The value loss uses `value_mask`; the policy, temperature and KL terms `policy_mask`.
+    /// Nothing is changed (Pop-Art statistics included) when the loss or a gradient is not finite.
     pub fn update(&mut self, batch: &SegmentBatch) -> Result<UpdateMetrics, LearnerError> {
         let device = self.vs.device();
         let b = batch.to_device(device);
@@ -141,9 +241,20 @@ impl Learner {
                 cfg.model.obs_dim()
             )));
         }
+        let n = n_seg * t_len;
+        let a_dim = cfg.model.action_dim as i64;
+        let flat = |t: &Tensor| t.reshape([n]);
+        let flat_actions = |t: &Tensor| t.reshape([n, a_dim]);
+
+        // 1. Forward every step from the memory stored at its segment's start.
         let out = self
             .model
             .forward_segment(&b.obs, &b.episode_start, &b.memory, &b.memory_len);
+        let hidden = *out.value_features.size().last().expect("value features");
+        let features = out.value_features.reshape([n, hidden]);
+        let task = flat(&b.task);
+
+        // 2. Targets: n-step (λ = 1) or λ-returns bootstrapped from the current value.
         let values = tch::no_grad(|| self.model.value(&out.value_features, &b.task));
         let returns = bootstrapped_returns(
             &b.rewards,
@@ -151,47 +262,45 @@ impl Learner {
             &b.terminated,
             &b.truncated,
             cfg.vmpo.gamma,
+            cfg.vmpo.lambda,
         );
+        let g = flat(&returns.returns);
+        let value_mask = flat(&returns.trainable);
+        let policy_mask = value_mask.logical_and(&flat(&b.instruction).logical_not());
 
-        let n = n_seg * t_len;
-        let task = b.task.reshape([n]);
-        let g = returns.returns.reshape([n]);
-        let value_valid = returns.trainable.reshape([n]);
-        let policy_valid = value_valid.logical_and(&b.instruction.reshape([n]).logical_not());
-        let popart = self.model.popart_mut().update(&g, &task, &value_valid);
+        // 3. Pop-Art: move the task statistics (undone below if the loss is not finite), then
+        //    normalised targets Ĝ and advantages Â = clip(Ĝ − sg(ñ)).
+        let popart_before = self.model.popart().snapshot();
+        let popart = self.model.popart_mut().update(&g, &task, &value_mask);
         let target = self.model.popart().normalise_targets(&g, &task);
-        let hidden = *out.value_features.size().last().expect("value features");
-        let predicted = self
-            .model
-            .popart()
-            .normalised(&out.value_features.reshape([n, hidden]), &task);
+        let predicted = self.model.popart().normalised(&features, &task);
         let clip = cfg.vmpo.advantage_clip;
         let advantages = (&target - predicted.detach()).clamp(-clip, clip);
 
-        let value_w = value_valid.to_kind(Kind::Float);
-        let value_steps = value_w.sum(Kind::Float).clamp_min(1.0);
+        // 4. Value loss ½ mean (ñ − Ĝ)² over value_mask.
+        let value_w = value_mask.to_kind(Kind::Float);
+        let value_count = value_w.sum(Kind::Float).clamp_min(1.0);
         let value_loss =
-            ((&predicted - &target).square() * &value_w).sum(Kind::Float) / &value_steps * 0.5;
+            ((&predicted - &target).square() * &value_w).sum(Kind::Float) / &value_count * 0.5;
 
-        let a_dim = cfg.model.action_dim as i64;
-        let mean = out.mean.reshape([n, a_dim]);
-        let std = out.std.reshape([n, a_dim]);
-        let old_mean = b.behaviour_mean.reshape([n, a_dim]);
-        let old_std = b.behaviour_std.reshape([n, a_dim]);
+        // 5. Policy and temperature over the top half of policy_mask by advantage.
+        let mean = flat_actions(&out.mean);
+        let std = flat_actions(&out.std);
         let m = &self.multipliers;
+        let eta = m.eta();
         let (policy_loss, temperature_loss, selected) =
-            match vmpo::top_advantages(&advantages, &policy_valid, cfg.vmpo.top_fraction) {
+            match vmpo::top_advantages(&advantages, &policy_mask, cfg.vmpo.top_fraction) {
                 Some(idx) => {
                     let top = advantages.index_select(0, &idx);
-                    let psi = vmpo::psi_weights(&top, &m.eta);
+                    let psi = vmpo::psi_weights(&top, &eta);
                     let log_prob = gaussian_log_prob(
                         &mean.index_select(0, &idx),
                         &std.index_select(0, &idx),
-                        &b.actions.reshape([n, a_dim]).index_select(0, &idx),
+                        &flat_actions(&b.actions).index_select(0, &idx),
                     );
                     (
                         -(psi * log_prob).sum(Kind::Float),
-                        vmpo::temperature_loss(&m.eta, &top, cfg.vmpo.eps_eta),
+                        vmpo::temperature_loss(&eta, &top, cfg.vmpo.eps_eta),
                         idx.size()[0],
                     )
                 }
@@ -201,39 +310,59 @@ impl Learner {
                     0,
                 ),
             };
+
+        // 6. Decoupled KL from π_old over policy_mask: the target network on the same inputs,
+        //    or the behaviour distribution stored at acting time.
+        let (old_mean, old_std) = match &self.target {
+            Some(target) => tch::no_grad(|| {
+                let o = target.forward_segment(&b.obs, &b.episode_start, &b.memory, &b.memory_len);
+                (flat_actions(&o.mean), flat_actions(&o.std))
+            }),
+            None => (
+                flat_actions(&b.behaviour_mean),
+                flat_actions(&b.behaviour_std),
+            ),
+        };
         let kl_mu = vmpo::kl_mean(&mean, &old_mean, &old_std);
         let kl_sigma = vmpo::kl_std(&std, &old_std);
+        let (alpha_mu, alpha_sigma) = (m.alpha_mu(), m.alpha_sigma());
         let alpha_mu_loss =
-            vmpo::multiplier_loss(&m.alpha_mu, &kl_mu, cfg.vmpo.eps_alpha_mu, &policy_valid);
+            vmpo::multiplier_loss(&alpha_mu, &kl_mu, cfg.vmpo.eps_alpha_mu, &policy_mask);
         let alpha_sigma_loss = vmpo::multiplier_loss(
-            &m.alpha_sigma,
+            &alpha_sigma,
             &kl_sigma,
             cfg.vmpo.eps_alpha_sigma,
-            &policy_valid,
+            &policy_mask,
         );
+
+        // 7. One Adam step over network, Pop-Art layer and multipliers.
         let loss =
             &policy_loss + &temperature_loss + &alpha_mu_loss + &alpha_sigma_loss + &value_loss;
         let loss_value = loss.double_value(&[]);
         if !loss_value.is_finite() {
+            self.model.popart_mut().restore(&popart_before);
             return Err(LearnerError::NonFinite(loss_value));
         }
         self.adam.zero_grad();
         loss.backward();
+        if !self.adam.gradients_finite() {
+            self.adam.zero_grad();
+            self.model.popart_mut().restore(&popart_before);
+            return Err(LearnerError::NonFiniteGradient(loss_value));
+        }
         self.adam.step();
-        let floor = cfg.vmpo.min_multiplier;
-        tch::no_grad(|| {
-            for t in [&m.eta, &m.alpha_mu, &m.alpha_sigma] {
-                let _ = t.shallow_clone().clamp_min_(floor);
-            }
-        });
+        m.project(cfg.vmpo.min_multiplier);
         self.updates += 1;
+        if self.updates.is_multiple_of(cfg.buffer.target_period as u64) {
+            self.sync_target();
+        }
 
-        let pw = policy_valid.to_kind(Kind::Float);
+        let pw = policy_mask.to_kind(Kind::Float);
         let policy_steps = pw.sum(Kind::Float).double_value(&[]);
         let masked_mean = |x: &Tensor, w: &Tensor, count: f64| {
             (x.detach() * w).sum(Kind::Float).double_value(&[]) / count.max(1.0)
         };
-        let value_count = value_w.sum(Kind::Float).double_value(&[]);
+        let value_steps = value_w.sum(Kind::Float).double_value(&[]);
         Ok(UpdateMetrics {
             loss: loss_value,
             policy_loss: policy_loss.double_value(&[]),
@@ -241,16 +370,16 @@ impl Learner {
             alpha_mu_loss: alpha_mu_loss.double_value(&[]),
             alpha_sigma_loss: alpha_sigma_loss.double_value(&[]),
             value_loss: value_loss.double_value(&[]),
-            eta: m.eta.double_value(&[]),
-            alpha_mu: m.alpha_mu.double_value(&[]),
-            alpha_sigma: m.alpha_sigma.double_value(&[]),
+            eta: m.eta().double_value(&[]),
+            alpha_mu: m.alpha_mu().double_value(&[]),
+            alpha_sigma: m.alpha_sigma().double_value(&[]),
             kl_mu: masked_mean(&kl_mu, &pw, policy_steps),
             kl_sigma: masked_mean(&kl_sigma, &pw, policy_steps),
-            mean_return: masked_mean(&g, &value_w, value_count),
+            mean_return: masked_mean(&g, &value_w, value_steps),
             mean_advantage: masked_mean(&advantages, &pw, policy_steps),
             policy_steps: policy_steps as i64,
             selected_steps: selected,
-            value_steps: value_count as i64,
+            value_steps: value_steps as i64,
             popart_mean_sigma: popart.mean_sigma,
             mean_std: masked_mean(&std.mean_dim(-1, false, Kind::Float), &pw, policy_steps),
         })

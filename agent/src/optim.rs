@@ -24,6 +24,8 @@ pub enum OptimStateError {
 pub struct Adam {
     cfg: OptimConfig,
     params: Vec<(String, Tensor)>,
+    /// Step size of each parameter (`cfg.lr` unless overridden by prefix).
+    lrs: Vec<f64>,
     m: Vec<Tensor>,
     v: Vec<Tensor>,
     step: i64,
@@ -40,13 +42,35 @@ impl Adam {
         params.sort_by(|a, b| a.0.cmp(&b.0));
         let m = params.iter().map(|(_, p)| p.zeros_like()).collect();
         let v = params.iter().map(|(_, p)| p.zeros_like()).collect();
+        let lrs = vec![cfg.lr; params.len()];
         Self {
             cfg,
             params,
+            lrs,
             m,
             v,
             step: 0,
         }
+    }
+
+    /// Gives every variable whose name starts with `prefix` its own step size.
+    pub fn set_lr_for_prefix(&mut self, prefix: &str, lr: f64) {
+        for ((name, _), l) in self.params.iter().zip(self.lrs.iter_mut()) {
+            if name.starts_with(prefix) {
+                *l = lr;
+            }
+        }
+    }
+
+    /// True when every gradient present is finite (an update with a NaN or infinite gradient
+    /// must not be applied).
+    pub fn gradients_finite(&self) -> bool {
+        tch::no_grad(|| {
+            self.params.iter().all(|(_, p)| {
+                let g = p.grad();
+                !g.defined() || g.isfinite().all().int64_value(&[]) == 1
+            })
+        })
     }
 
     pub fn steps(&self) -> i64 {
@@ -61,20 +85,19 @@ impl Adam {
 
     pub fn step(&mut self) {
         let OptimConfig {
-            lr,
-            beta1,
-            beta2,
-            eps,
+            beta1, beta2, eps, ..
         } = self.cfg;
         self.step += 1;
         let bc1 = 1.0 - beta1.powi(self.step as i32);
         let bc2 = 1.0 - beta2.powi(self.step as i32);
         tch::no_grad(|| {
-            for ((_, p), (m, v)) in self
+            for (((_, p), lr), (m, v)) in self
                 .params
                 .iter_mut()
+                .zip(self.lrs.iter())
                 .zip(self.m.iter_mut().zip(self.v.iter_mut()))
             {
+                let lr = *lr;
                 let g = p.grad();
                 if !g.defined() {
                     continue;

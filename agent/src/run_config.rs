@@ -1,6 +1,11 @@
 //! A run config: the agent's sections ([`AgentConfig`]) plus what to train on ([env]), for
 //! how long and how often to evaluate, checkpoint and log ([train]), and where to evaluate
 //! ([eval]). One TOML file; unknown keys are errors.
+//!
+//! A file may start from another: `base = "../ml1-reach.toml"` (relative to the file) reads
+//! that config first and merges this file into it, table by table and key by key (so
+//! `[vmpo]\neps_eta = 0.05` changes one value and an inline table such as `kwargs` gains or
+//! changes keys); any other value replaces the base's. Bases may have bases.
 
 use std::path::Path;
 
@@ -128,7 +133,12 @@ impl RunConfig {
     }
 
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        Self::from_toml_str(&read_config_file(path)?).map_err(|e| match e {
+        let parse = || -> Result<Self, ConfigError> {
+            let cfg: RunConfig = toml::Value::Table(read_layered(path, 0)?).try_into()?;
+            cfg.validate()?;
+            Ok(cfg)
+        };
+        parse().map_err(|e| match e {
             ConfigError::Parse(p) => ConfigError::Invalid(format!("{}: {p}", path.display())),
             ConfigError::Invalid(m) => ConfigError::Invalid(format!("{}: {m}", path.display())),
             other => other,
@@ -195,6 +205,44 @@ impl RunConfig {
     }
 }
 
+/// Bases deeper than this are refused (a cycle of `base` keys would never end).
+const MAX_BASE_DEPTH: usize = 8;
+
+/// The TOML table of `path` with its `base` chain resolved (see the module docs).
+fn read_layered(path: &Path, depth: usize) -> Result<toml::Table, ConfigError> {
+    if depth > MAX_BASE_DEPTH {
+        return Err(ConfigError::Invalid(format!(
+            "{}: config bases nest more than {MAX_BASE_DEPTH} deep (a cycle?)",
+            path.display()
+        )));
+    }
+    let mut table: toml::Table = toml::from_str(&read_config_file(path)?)?;
+    match table.remove("base") {
+        None => Ok(table),
+        Some(toml::Value::String(rel)) => {
+            let base_path = path.parent().unwrap_or(Path::new(".")).join(rel);
+            let mut base = read_layered(&base_path, depth + 1)?;
+            merge_into(&mut base, table);
+            Ok(base)
+        }
+        Some(other) => Err(ConfigError::Invalid(format!(
+            "base must be the path of another config, got {other}"
+        ))),
+    }
+}
+
+/// Merges `over` into `base`: tables key by key (recursively), anything else replaced.
+fn merge_into(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_into(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
 fn kwargs_from_toml(table: &toml::Table, what: &str) -> Result<Kwargs, ConfigError> {
     table
         .iter()
@@ -236,6 +284,38 @@ mod tests {
         assert_eq!(kw["num_goals"], Value::Int(4));
         assert_eq!(kw["instructions"], Value::Bool(false));
         assert_eq!(kw["time_obs"], Value::String("trial".into()));
+    }
+
+    #[test]
+    fn a_config_with_a_base_overrides_it_key_by_key() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::create_dir(dir.path().join("sub")).unwrap();
+        std::fs::write(
+            dir.path().join("base.toml"),
+            "[env]\nid = \"million/PointGoal\"\nkwargs = { num_goals = 4, trial_len = 8 }\n\
+             [vmpo]\neps_eta = 0.2\ngamma = 0.9\n",
+        )
+        .unwrap();
+        let child = dir.path().join("sub/child.toml");
+        std::fs::write(
+            &child,
+            "base = \"../base.toml\"\n[env]\nkwargs = { num_goals = 2 }\n[vmpo]\ngamma = 0.5\n",
+        )
+        .unwrap();
+        let cfg = RunConfig::from_file(&child).unwrap();
+        assert_eq!(cfg.env.id, "million/PointGoal");
+        let kw = cfg.env_kwargs().unwrap();
+        assert_eq!(kw["num_goals"], Value::Int(2));
+        assert_eq!(kw["trial_len"], Value::Int(8));
+        assert_eq!((cfg.vmpo.eps_eta, cfg.vmpo.gamma), (0.2, 0.5));
+        // A cycle is refused with a clear error, not a stack overflow.
+        std::fs::write(&child, "base = \"child.toml\"\n").unwrap();
+        let err = RunConfig::from_file(&child).unwrap_err().to_string();
+        assert!(err.contains("nest more than"), "{err}");
+        // A missing base names the file.
+        std::fs::write(&child, "base = \"nowhere.toml\"\n").unwrap();
+        let err = RunConfig::from_file(&child).unwrap_err().to_string();
+        assert!(err.contains("nowhere.toml"), "{err}");
     }
 
     #[test]

@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use common::small_agent;
 use million::algo::buffer::{BufferCounters, SegmentBatch};
 use million::checkpoint;
-use million::config::AgentConfig;
+use million::config::{AgentConfig, KlReference, MultiplierForm};
 use million::learner::Learner;
 use million::model::policy::sample_actions;
 use tch::{Device, Kind, Tensor};
@@ -92,16 +92,113 @@ fn multipliers_stay_positive_under_a_huge_learning_rate() {
         let batch = bandit_batch(&l, 4);
         l.update(&batch).unwrap();
         for (name, t) in [
-            ("eta", &l.multipliers().eta),
-            ("alpha_mu", &l.multipliers().alpha_mu),
-            ("alpha_sigma", &l.multipliers().alpha_sigma),
+            ("eta", l.multipliers().eta()),
+            ("alpha_mu", l.multipliers().alpha_mu()),
+            ("alpha_sigma", l.multipliers().alpha_sigma()),
         ] {
             let v = t.double_value(&[]);
             assert!(v >= cfg.vmpo.min_multiplier * 0.999, "{name} = {v}");
         }
     }
     // ∂L/∂α_Σ = ε_αΣ − C_Σ > 0 while the policy barely moves its std: α_Σ is driven to the floor.
-    assert!(l.multipliers().alpha_sigma.double_value(&[]) < 1e-6);
+    assert!(l.multipliers().alpha_sigma().double_value(&[]) < 1e-6);
+}
+
+#[test]
+fn log_form_multipliers_move_by_factors_with_their_own_step_size() {
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.vmpo.multiplier_form = MultiplierForm::Log;
+    cfg.vmpo.multiplier_lr = Some(0.1);
+    cfg.optim.lr = 1e-6;
+    let mut l = learner(cfg, 2);
+    let before = l.multipliers().alpha_sigma().double_value(&[]);
+    assert!((before - 1.0).abs() < 1e-6);
+    for _ in 0..5 {
+        let batch = bandit_batch(&l, 4);
+        l.update(&batch).unwrap();
+    }
+    // ∂L/∂α_Σ = ε_αΣ − C_Σ > 0 (the std barely moves at lr 1e-6): Adam steps log α_Σ down by
+    // about the multiplier lr per update, so α_Σ ≈ e^{−0.5}, and stays positive.
+    let after = l.multipliers().alpha_sigma().double_value(&[]);
+    assert!(
+        after > 0.0 && (after.ln() + 0.5).abs() < 0.1,
+        "α_Σ = {after}"
+    );
+    // The network moved by its own, much smaller step size.
+    let eta = l.multipliers().eta().double_value(&[]);
+    assert!(eta > 0.0 && eta.is_finite());
+}
+
+#[test]
+fn the_target_network_is_the_kl_reference_and_syncs_every_target_period() {
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.vmpo.kl_reference = KlReference::Target;
+    cfg.buffer.target_period = 3;
+    cfg.optim.lr = 1e-2;
+    let mut l = learner(cfg, 2);
+    let vars = l.var_store().variables();
+    let (online, target) = ("policy.out.weight", "target.policy.out.weight");
+    assert!(
+        vars[online].equal(&vars[target]),
+        "the target starts as the network"
+    );
+    assert!(!vars[target].requires_grad());
+    let batch = bandit_batch(&l, 4);
+    // Behaviour = target = online at the first update: both KLs are zero.
+    let m = l.update(&batch).unwrap();
+    assert!(m.kl_mu.abs() < 1e-10 && m.kl_sigma.abs() < 1e-10, "{m:?}");
+    // After one step the online network moved, the target did not: the KL is measured from
+    // the target even though the batch's stored behaviour is the old network too.
+    let m = l.update(&batch).unwrap();
+    assert!(m.kl_mu > 0.0, "{m:?}");
+    let vars = l.var_store().variables();
+    assert!(!vars[online].equal(&vars[target]));
+    l.update(&batch).unwrap();
+    let vars = l.var_store().variables();
+    assert!(vars[online].equal(&vars[target]), "synced after 3 updates");
+}
+
+#[test]
+fn a_non_finite_batch_changes_nothing() {
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.popart.debias = true;
+    let mut l = learner(cfg, 2);
+    let batch = bandit_batch(&l, 4);
+    let _ = batch.rewards.get(0).get(0).fill_(f64::NAN);
+    let before: Vec<(String, Tensor)> = l
+        .var_store()
+        .variables()
+        .into_iter()
+        .map(|(k, v)| (k, v.detach().copy()))
+        .collect();
+    assert!(l.update(&batch).is_err());
+    assert_eq!(l.updates(), 0);
+    let after = l.var_store().variables();
+    for (name, v) in before {
+        let same = v.equal(&after[&name]);
+        assert!(same, "{name} changed by a skipped update");
+    }
+}
+
+#[test]
+fn debiased_popart_starts_from_the_first_batch_moments() {
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.popart.debias = true;
+    cfg.vmpo.gamma = 0.0;
+    let mut l = learner(cfg, 2);
+    let batch = bandit_batch(&l, 4);
+    l.update(&batch).unwrap();
+    // γ = 0: the targets are the rewards of the value-trained steps (all but the last of each
+    // segment); after one debiased update μ is their mean, not β times it.
+    let vars = l.var_store().variables();
+    let mu = vars["popart.mu"].double_value(&[1]);
+    let t = batch.rewards.size()[1];
+    let rewards = batch.rewards.narrow(1, 0, t - 1).to_kind(Kind::Double);
+    let expected = rewards.mean(Kind::Double).double_value(&[]);
+    assert!(
+        (mu - expected).abs() < 1e-6,
+        "μ = {mu}, mean reward {expected}"
+    );
 }
 
 #[test]

@@ -32,6 +32,7 @@ fn run(cfg: RunConfig, run_dir: &Path) -> TrainSummary {
     rt.block_on(train(TrainOptions {
         config: cfg,
         servers: vec![],
+        env_access: Default::default(),
         run_dir: Some(run_dir.to_owned()),
         resume: false,
         progress: false,

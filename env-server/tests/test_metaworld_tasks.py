@@ -83,6 +83,24 @@ def test_bad_arguments_are_value_errors(
         MetaWorldTaskSampler(benchmark, split, task=task)
 
 
+def test_cycle_order_starts_at_seed_mod_n_and_takes_classes_in_turn() -> None:
+    sampler = MetaWorldTaskSampler("ML10", "test", task_order="cycle")
+    names = sampler.task_names
+    for seed in (0, 3, 7):
+        sampler.seed(seed)
+        got = [sampler.sample().name for _ in range(len(names) + 1)]
+        expected = [names[(seed + k) % len(names)] for k in range(len(names) + 1)]
+        assert got == expected
+    # Envs seeded s + i, one episode each, cover every class equally.
+    firsts = []
+    for i in range(3 * len(names)):
+        sampler.seed(100 + i)
+        firsts.append(sampler.sample().name)
+    assert all(firsts.count(n) == 3 for n in names)
+    with pytest.raises(ValueError, match="task_order"):
+        MetaWorldTaskSampler("ML10", "test", task_order="sorted")
+
+
 def test_negative_seed_rejected() -> None:
     sampler = MetaWorldTaskSampler("ML1", "train", task="reach-v3")
     with pytest.raises(ValueError, match="non-negative"):

@@ -59,6 +59,7 @@ def test_registered_ids() -> None:
         "action_repeat": 2,
         "trials": 3,
         "trial_len": 200,
+        "task_order": "random",
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):

@@ -328,6 +328,7 @@ def test_info_fields_are_declared_and_always_set() -> None:
         ({"instructions": "yes"}, "instructions"),
         ({"instruction_set": "test"}, "instruction_set"),
         ({"num_goals": 3}, "num_goals"),
+        ({"task_order": "sorted"}, "task_order"),
     ],
 )
 def test_bad_kwargs_are_clear_errors(kwargs: dict[str, Any], message: str) -> None:
@@ -389,6 +390,17 @@ def test_word_following_agent_succeeds_and_word_ignoring_agent_does_not() -> Non
 
 def first_trial_success(records: list[dict[str, Any]]) -> bool:
     return next(r["info"]["success"] for r in records if r["info"]["trial_end"])
+
+
+def test_cycle_task_order_gives_envs_seeded_in_a_row_every_goal_equally() -> None:
+    names = []
+    for i in range(8):
+        env = make(task_order="cycle")
+        _, info = env.reset(seed=40 + i)
+        names.append(info["task_name"])
+    # 4 goals, 8 envs seeded in a row: each goal exactly twice.
+    assert len(set(names)) == 4
+    assert all(names.count(n) == 2 for n in set(names))
 
 
 def test_sentence_choice_is_independent_of_the_goal_choice() -> None:

@@ -1,4 +1,9 @@
-//! n-step bootstrapped returns over a segment (ALGORITHM.md §4.1, no GAE).
+//! n-step bootstrapped returns over a segment (ALGORITHM.md §4.1, no GAE), or λ-returns.
+//!
+//! With λ = 1 (the original) G_t = r_t + γ G_{t+1}: every target sums the rewards up to the
+//! segment's end. With λ < 1, G_t = r_t + γ [(1 − λ) V(s_{t+1}) + λ G_{t+1}] (the λ-return,
+//! whose advantage G_t − V(s_t) is GAE(λ)): a step's target leans on the value of the next
+//! states instead of on every later reward, which lowers the variance of the advantages.
 //!
 //! A step whose successor is unknown — the segment's last step, or a step that was truncated
 //! (its final observation is not in the segment because the env autoreset) — is not trained;
@@ -16,13 +21,14 @@ pub struct Returns {
 }
 
 /// `rewards`, `values` (unnormalised, no gradient) `[B, T]` float; `terminated`, `truncated`
-/// `[B, T]` bool.
+/// `[B, T]` bool; `lambda` in [0, 1] (1 = n-step returns).
 pub fn bootstrapped_returns(
     rewards: &Tensor,
     values: &Tensor,
     terminated: &Tensor,
     truncated: &Tensor,
     gamma: f64,
+    lambda: f64,
 ) -> Returns {
     let (_, t_len) = rewards.size2().expect("rewards are [B, T]");
     let values = values.detach();
@@ -32,7 +38,12 @@ pub fn bootstrapped_returns(
     let mut next = values.select(1, t_len - 1);
     columns.push(next.shallow_clone());
     for t in (0..t_len - 1).rev() {
-        let through = rewards.select(1, t) + continues.select(1, t) * &next * gamma;
+        let ahead = if lambda < 1.0 {
+            values.select(1, t + 1) * (1.0 - lambda) + &next * lambda
+        } else {
+            next.shallow_clone()
+        };
+        let through = rewards.select(1, t) + continues.select(1, t) * ahead * gamma;
         next = values.select(1, t).where_self(&cut.select(1, t), &through);
         columns.push(next.shallow_clone());
     }
@@ -69,6 +80,7 @@ mod tests {
             &flags(&[false, false, false]),
             &flags(&[false, false, false]),
             0.5,
+            1.0,
         );
         assert_eq!(vec(&r.returns), vec![5.0, 6.0, 10.0]);
         assert_eq!(
@@ -88,6 +100,7 @@ mod tests {
             &flags(&[false, true, false, false, false, false]),
             &flags(&[false, false, false, true, false, false]),
             0.5,
+            1.0,
         );
         assert_eq!(vec(&r.returns), vec![2.0, 2.0, 5.0, 4.0, 5.0, 8.0]);
         assert_eq!(
@@ -104,7 +117,22 @@ mod tests {
             &flags(&[false, true, false]),
             &flags(&[false, true, false]),
             1.0,
+            1.0,
         );
         assert_eq!(vec(&r.returns), vec![4.0, 3.0, 9.0]);
+    }
+
+    #[test]
+    fn lambda_returns_mix_next_values_and_later_rewards() {
+        // V = [1, 2, 10], r = [2, 1, ·], γ = 0.5, λ = 0.5: G2 = V2 = 10;
+        // G1 = 1 + 0.5·(0.5·10 + 0.5·10) = 6; G0 = 2 + 0.5·(0.5·V1 + 0.5·G1) = 2 + 0.5·4 = 4.
+        let rewards = t(&[2.0, 1.0, 7.0]);
+        let values = t(&[1.0, 2.0, 10.0]);
+        let none = flags(&[false, false, false]);
+        let r = bootstrapped_returns(&rewards, &values, &none, &none, 0.5, 0.5);
+        assert_eq!(vec(&r.returns), vec![4.0, 6.0, 10.0]);
+        // λ = 0: one-step TD targets r + γ V(s').
+        let r = bootstrapped_returns(&rewards, &values, &none, &none, 0.5, 0.0);
+        assert_eq!(vec(&r.returns), vec![3.0, 6.0, 10.0]);
     }
 }

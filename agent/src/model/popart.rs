@@ -14,8 +14,14 @@ pub struct PopArt {
     mu: Tensor,
     nu: Tensor,
     sigma: Tensor,
+    /// Updates in which each task was present (for debiased step sizes).
+    updates: Tensor,
     cfg: PopArtConfig,
 }
+
+/// A copy of the statistics and the output layer, to undo an update.
+#[derive(Debug)]
+pub struct PopArtState(Vec<Tensor>);
 
 /// Per-task statistics after an update, for logging.
 #[derive(Debug, Clone, Copy)]
@@ -42,12 +48,14 @@ impl PopArt {
         let mu = p.add("mu", stat(0.0), false);
         let nu = p.add("nu", stat(1.0), false);
         let sigma = p.add("sigma", stat(1.0), false);
+        let updates = p.add("updates", stat(0.0), false);
         Self {
             weight,
             bias,
             mu,
             nu,
             sigma,
+            updates,
             cfg,
         }
     }
@@ -80,6 +88,31 @@ impl PopArt {
         &self.sigma
     }
 
+    fn tensors(&self) -> [&Tensor; 6] {
+        [
+            &self.weight,
+            &self.bias,
+            &self.mu,
+            &self.nu,
+            &self.sigma,
+            &self.updates,
+        ]
+    }
+
+    /// A copy of everything `update` changes.
+    pub fn snapshot(&self) -> PopArtState {
+        PopArtState(self.tensors().iter().map(|t| t.detach().copy()).collect())
+    }
+
+    /// Puts back a snapshot taken by [`PopArt::snapshot`].
+    pub fn restore(&mut self, state: &PopArtState) {
+        tch::no_grad(|| {
+            for (dst, src) in self.tensors().into_iter().zip(&state.0) {
+                dst.shallow_clone().copy_(src);
+            }
+        });
+    }
+
     /// Moves μ, ν, σ of every task present (where `valid`) towards its targets and rescales
     /// that task's output row so that the unnormalised outputs are unchanged. A no-op when
     /// Pop-Art is disabled (the ablation keeps μ = 0, σ = 1).
@@ -101,10 +134,16 @@ impl PopArt {
             let sum_sq = zeros.index_add(0, task, &(g.square() * &w));
             let present = count.gt(0.0);
             let n = count.clamp_min(1.0);
-            let beta = self.cfg.beta;
-            let mu_new = (&self.mu * (1.0 - beta) + sum / &n * beta).where_self(&present, &self.mu);
-            let nu_new =
-                (&self.nu * (1.0 - beta) + sum_sq / &n * beta).where_self(&present, &self.nu);
+            let updates = &self.updates + present.to_kind(Kind::Double);
+            // β per task: the configured β, or max(β, 1/n_k) when debiased.
+            let beta = if self.cfg.debias {
+                updates.clamp_min(1.0).reciprocal().clamp_min(self.cfg.beta)
+            } else {
+                Tensor::full([k], self.cfg.beta, (Kind::Double, device))
+            };
+            let keep = 1.0 - &beta;
+            let mu_new = (&self.mu * &keep + sum / &n * &beta).where_self(&present, &self.mu);
+            let nu_new = (&self.nu * &keep + sum_sq / &n * &beta).where_self(&present, &self.nu);
             let sigma_new = (&nu_new - mu_new.square())
                 .clamp_min(0.0)
                 .sqrt()
@@ -120,6 +159,7 @@ impl PopArt {
             self.mu.copy_(&mu_new);
             self.nu.copy_(&nu_new);
             self.sigma.copy_(&sigma_new);
+            self.updates.copy_(&updates);
             let tasks_updated = present.sum(Kind::Int64).int64_value(&[]);
             let shown = if tasks_updated > 0 {
                 sigma_new.masked_select(&present)

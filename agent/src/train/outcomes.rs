@@ -24,27 +24,63 @@ fn flag(info: &InfoBatch, name: &str, row: usize) -> bool {
         .is_some_and(|v| v.first().copied().unwrap_or(false))
 }
 
-fn text(info: &InfoBatch, name: &str, row: usize) -> Option<String> {
+/// A text info field of one row (e.g. `task_name`), when the row has it.
+pub fn text(info: &InfoBatch, name: &str, row: usize) -> Option<String> {
     let f = info.get(name).filter(|f| f.present[row])?;
     f.value.strings().get(row).cloned()
 }
 
-/// The trials that ended at this step.
-pub fn trial_outcomes(step: &StepBatch) -> Vec<TrialOutcome> {
-    let ended = step.ended();
-    (0..step.rows())
-        .filter_map(|row| {
-            let info = match (&step.final_info, ended[row]) {
+/// Turns step replies into finished trials. MILLION envs mark the end of each trial
+/// (`trial_end`, with `success` and `task_name`). Any other env (a plain Gymnasium id such as
+/// `Meta-World/MT1`) is read as one trial per episode, successful when `success` was set at
+/// any of its steps (Meta-World's own criterion), under the tracker's default task name.
+#[derive(Debug, Clone)]
+pub struct TrialTracker {
+    default_task: String,
+    succeeded: Vec<bool>,
+}
+
+impl TrialTracker {
+    pub fn new(rows: usize, default_task: &str) -> Self {
+        Self {
+            default_task: default_task.to_owned(),
+            succeeded: vec![false; rows],
+        }
+    }
+
+    /// The trials that ended at this step of the rows `offset..offset + step.rows()`.
+    pub fn outcomes(&mut self, offset: usize, step: &StepBatch) -> Vec<TrialOutcome> {
+        let ended = step.ended();
+        let mut out = vec![];
+        for (row, &end) in ended.iter().enumerate() {
+            let info = match (&step.final_info, end) {
                 (Some(fi), true) => fi,
                 _ => &step.info,
             };
-            flag(info, "trial_end", row).then(|| TrialOutcome {
-                row,
-                task: text(info, "task_name", row).unwrap_or_else(|| "unknown".into()),
-                success: flag(info, "success", row),
-            })
-        })
-        .collect()
+            let task = || text(info, "task_name", row).unwrap_or_else(|| self.default_task.clone());
+            if info.get("trial_end").is_some() {
+                if flag(info, "trial_end", row) {
+                    out.push(TrialOutcome {
+                        row,
+                        task: task(),
+                        success: flag(info, "success", row),
+                    });
+                }
+                continue;
+            }
+            let seen = &mut self.succeeded[offset + row];
+            *seen |= flag(info, "success", row);
+            if end {
+                let success = std::mem::take(seen);
+                out.push(TrialOutcome {
+                    row,
+                    task: task(),
+                    success,
+                });
+            }
+        }
+        out
+    }
 }
 
 /// Success counts per task.

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use million_env::{AutoresetMode, EnvPool, LocalServer, PoolConfig};
+use million_env::{AutoresetMode, EnvPool, PoolConfig, SupervisedServer};
 use serde::Serialize;
 use tch::nn::VarStore;
 
@@ -23,8 +23,8 @@ use crate::run_config::RunConfig;
 use crate::train::actor::{ActionBounds, GroupActor};
 use crate::train::eval::{EvalReport, Evaluator};
 use crate::train::learner_loop::{LearnerThreadArgs, Shared, run_learner};
-use crate::train::outcomes::{EpisodeReturns, SuccessTable, trial_outcomes};
-use crate::train::servers::{client_config, start_local_servers};
+use crate::train::outcomes::{EpisodeReturns, SuccessTable, TrialTracker};
+use crate::train::servers::{EnvAccess, client_config, start_local_servers};
 use crate::train::weights::thread_cpu_seconds;
 
 /// Metadata key under which checkpoints keep the full run config (TOML).
@@ -34,6 +34,8 @@ pub struct TrainOptions {
     pub config: RunConfig,
     /// Env servers to use; empty = start `runtime.env_servers` local ones.
     pub servers: Vec<String>,
+    /// Token and TLS for the given servers.
+    pub env_access: EnvAccess,
     /// Metrics and checkpoints go here; None = nothing written (benchmarks).
     pub run_dir: Option<PathBuf>,
     pub resume: bool,
@@ -117,7 +119,8 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     tch::manual_seed(cfg.env.agent_seed as i64);
     let device = cfg.runtime.device();
 
-    let (_local_servers, servers): (Vec<LocalServer>, Vec<String>) = if opts.servers.is_empty() {
+    let (local_servers, servers): (Vec<SupervisedServer>, Vec<String>) = if opts.servers.is_empty()
+    {
         let local = start_local_servers(cfg.runtime.env_servers).await?;
         let addrs = local.iter().map(|s| s.addr().to_owned()).collect();
         (local, addrs)
@@ -147,7 +150,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         .copy_weights_to(&mut actor_vs)
         .context("initial actor weights")?;
 
-    let client = client_config(&cfg);
+    let client = client_config(&cfg, &opts.env_access);
     let mut pool_cfg = PoolConfig::new(servers.clone(), cfg.env.id.clone(), cfg.env.num_envs);
     pool_cfg.kwargs = cfg.env_kwargs()?;
     pool_cfg.groups = cfg.env.groups;
@@ -231,6 +234,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     };
     let mut window = SuccessTable::default();
     let mut returns = EpisodeReturns::new(pool.num_envs());
+    let mut trials = TrialTracker::new(pool.num_envs(), &pool.spec().env_id);
     let mut last_log = (Instant::now(), agent_steps, 0u64);
     let mut weights_version = 0u64;
     let mut groups: Vec<GroupActor> = (0..pool.num_groups())
@@ -255,7 +259,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                     tx.send(batch)
                         .map_err(|_| anyhow::anyhow!("the learner thread stopped"))?;
                 }
-                for t in trial_outcomes(&step) {
+                for t in trials.outcomes(g.offset, &step) {
                     window.record(&t.task, t.success);
                 }
                 returns.record(g.offset, &step);
@@ -277,11 +281,18 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                 let mut s = Scalars::new();
                 s.insert("train/agent_steps_per_s".into(), sps);
                 s.insert("train/updates".into(), progress.updates as f64);
+                // Updates refused for a non-finite loss or gradient (nothing was changed).
+                s.insert(
+                    "learner/skipped_updates".into(),
+                    progress.skipped_updates as f64,
+                );
                 s.insert("train/updates_per_s".into(), ups);
                 s.insert("train/replay_ratio".into(), progress.replay_ratio);
                 s.insert("train/buffer_segments".into(), progress.buffer_len as f64);
                 s.insert("cpu/actor_s".into(), thread_cpu_seconds() - cpu_start);
                 s.insert("cpu/learner_s".into(), progress.cpu_seconds);
+                let restarts: u64 = local_servers.iter().map(SupervisedServer::restarts).sum();
+                s.insert("env/local_server_restarts".into(), restarts as f64);
                 if window.trials() > 0 {
                     s.insert("train/success".into(), window.mean());
                 }

@@ -77,11 +77,25 @@ class SampledTask:
     env: Any
 
 
+TASK_ORDERS = ("random", "cycle")
+
+
+def parse_task_order(task_order: str) -> bool:
+    """True for ``"cycle"``, False for ``"random"``; anything else is a ValueError."""
+    if task_order not in TASK_ORDERS:
+        raise ValueError(f"task_order must be one of {TASK_ORDERS}, got {task_order!r}")
+    return task_order == "cycle"
+
+
 class MetaWorldTaskSampler:
     """Seeded sampling of a (task class, goal variation) from a Meta-World v3 benchmark split.
 
     One Meta-World env per task class is built once (on first use) and reused;
     ``max_built_envs`` bounds how many stay built (least recently used are closed).
+
+    ``task_order="cycle"`` takes the classes in turn instead of at random, starting at
+    class ``seed mod n`` after ``seed(seed)``: envs seeded ``s + i`` then cover every class
+    equally, which evaluation uses to score each task on the same number of episodes.
     """
 
     def __init__(
@@ -92,8 +106,10 @@ class MetaWorldTaskSampler:
         seed: int | None = None,
         benchmark_seed: int = DEFAULT_BENCHMARK_SEED,
         max_built_envs: int | None = None,
+        task_order: str = "random",
     ) -> None:
         _validate(benchmark, split, task)
+        self._cycle = parse_task_order(task_order)
         if max_built_envs is not None and max_built_envs < 1:
             raise ValueError(f"max_built_envs must be at least 1, got {max_built_envs}")
         # Each built Meta-World env holds ~20 MB; ML45 builds up to 45 of them per
@@ -112,6 +128,7 @@ class MetaWorldTaskSampler:
         self._envs: dict[str, Any] = {}
         self._seed: int | None = None
         self._rng = np.random.default_rng()
+        self._next_class = 0
         if seed is not None:
             self.seed(seed)
 
@@ -121,12 +138,18 @@ class MetaWorldTaskSampler:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         self._seed = int(seed)
         self._rng = np.random.default_rng(self._seed)
+        self._next_class = self._seed % len(self.task_names)
         for name, env in self._envs.items():
             env.seed(self._env_seed(name))
 
     def sample(self) -> SampledTask:
-        """Picks a class, then one of its goals, uniformly; sets that task on the class's env."""
-        name = self.task_names[int(self._rng.integers(len(self.task_names)))]
+        """Picks a class (uniformly, or the next in turn), then one of its goals uniformly;
+        sets that task on the class's env."""
+        if self._cycle:
+            name = self.task_names[self._next_class]
+            self._next_class = (self._next_class + 1) % len(self.task_names)
+        else:
+            name = self.task_names[int(self._rng.integers(len(self.task_names)))]
         goals = self._tasks_by_name[name]
         mw_task = goals[int(self._rng.integers(len(goals)))]
         env = self._env(name)

@@ -19,10 +19,11 @@ def make_metaworld_million(
     action_repeat: int = 2,
     trials: int = 3,
     trial_len: int = 200,
+    task_order: str = "random",
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
     sentences = metaworld_instructions(instruction_set)
-    source = MetaWorldSource(benchmark, split, task=task)
+    source = MetaWorldSource(benchmark, split, task=task, task_order=task_order)
     try:
         return MillionEnv(
             source,
@@ -47,12 +48,13 @@ def make_point_goal_million(
     action_repeat: int = 1,
     trials: int = 3,
     trial_len: int = 25,
+    task_order: str = "random",
 ) -> MillionEnv:
     """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
     if isinstance(num_goals, bool) or not isinstance(num_goals, int):
         raise ValueError(f"num_goals must be an integer, got {num_goals!r}")
     sentences = point_goal_instructions(instruction_set, num_goals)
-    source = PointGoalSource(tuple(sentences))
+    source = PointGoalSource(tuple(sentences), task_order=task_order)
     return MillionEnv(
         source,
         sentences,

@@ -9,6 +9,7 @@ import numpy as np
 import numpy.typing as npt
 
 from million_env.metaworld_tasks import ALL_TASK_NAMES, MetaWorldTaskSampler
+from million_env.rendering import render_metaworld
 
 
 class MetaWorldTask:
@@ -46,12 +47,18 @@ class MetaWorldTask:
     def goal(self) -> npt.NDArray[np.float64]:
         return np.array(self._env._target_pos, dtype=np.float64)
 
+    def render(self, width: int, height: int, camera: str, cache: Any) -> npt.NDArray[np.uint8]:
+        """The scene in its current state (`million_env.rendering.render_metaworld`)."""
+        return render_metaworld(self._env, width, height, camera, cache)
+
 
 class MetaWorldSource:
     """Tasks of a benchmark split, sampled by the shared `MetaWorldTaskSampler`."""
 
-    def __init__(self, benchmark: str, split: str, task: str | None = None) -> None:
-        self._sampler = MetaWorldTaskSampler(benchmark, split, task=task)
+    def __init__(
+        self, benchmark: str, split: str, task: str | None = None, task_order: str = "random"
+    ) -> None:
+        self._sampler = MetaWorldTaskSampler(benchmark, split, task=task, task_order=task_order)
         # Every Meta-World v3 env has the same action space and path limit; read
         # them from one env so that a change upstream is followed.
         probe = self._sampler.sample()

@@ -26,6 +26,7 @@ _MEANINGS = {
     "trial_len": "env steps per trial",
     "num_goals": "2|4|8",
     "task": "Meta-World task class",
+    "task_order": "'random'|'cycle' (cycle: task (seed + k) mod n at the k-th episode)",
 }
 
 
