@@ -76,7 +76,7 @@ fn check_acting_equals_learning(segment_len: usize, memory_len: usize) {
         if let Some(prev) = &previous_next_memory {
             assert!(max_abs_diff(prev, &b.memory) < 1e-5, "segment {i} memory");
         }
-        previous_next_memory = Some(out.core.next_memory);
+        previous_next_memory = Some(out.core.next_memory());
     }
     // Slot 1 reset at step 3 of segment 1: its memory for segment 2 keeps min(m, T−3) rows.
     let expected = (memory_len as i64).min(t_len - 3);

@@ -80,7 +80,7 @@ fn segments_with_memory_equal_the_whole_sequence() {
         &obs.narrow(1, 8, 8),
         &starts.narrow(1, 8, 8),
         &(
-            first.core.next_memory.shallow_clone(),
+            first.core.next_memory(),
             first.core.next_memory_len.shallow_clone(),
         ),
     );

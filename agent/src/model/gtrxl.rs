@@ -156,10 +156,24 @@ impl GtrxlLayer {
 pub struct CoreOutput {
     /// `[B, T, d]`
     pub output: Tensor,
-    /// Memory for the next segment, `[L, B, m, d]` (detached, rows of ended episodes zeroed).
-    pub next_memory: Tensor,
-    /// Valid trailing rows of `next_memory`, `[B]` (i64).
+    /// Valid trailing rows of `next_memory()`, `[B]` (i64).
     pub next_memory_len: Tensor,
+    /// Each layer's `[memory; normalised segment]` rows, `[B, m + T, d]`, from which the
+    /// next memory is cut on demand: learning never asks for it, so it costs nothing there.
+    rows: Vec<Tensor>,
+    memory_len: i64,
+}
+
+impl CoreOutput {
+    /// Memory for the next segment, `[L, B, m, d]` (detached, rows of ended episodes zeroed).
+    pub fn next_memory(&self) -> Tensor {
+        let layers: Vec<Tensor> = self
+            .rows
+            .iter()
+            .map(|rows| last_rows(&rows.detach(), self.memory_len, &self.next_memory_len))
+            .collect();
+        Tensor::stack(&layers, 0)
+    }
 }
 
 #[derive(Debug)]
@@ -232,7 +246,7 @@ impl Gtrxl {
         let mask = key_mask(&valid_from, m, t_len).unsqueeze(1); // [B, 1, T, K]
         let distance = relative_distance(m, t_len, device);
         let mut x = x.shallow_clone();
-        let mut next_memory = Vec::with_capacity(self.layers.len());
+        let mut layer_rows = Vec::with_capacity(self.layers.len());
         // The window's valid rows after this segment: everything from the last episode start.
         let last_valid_from = valid_from.select(1, t_len - 1);
         let next_len = (-&last_valid_from + (m + t_len)).clamp_max(m);
@@ -242,12 +256,13 @@ impl Gtrxl {
             let (k, v) = layer.keys_values(&rows);
             let bias = &mask + layer.relative_bias(&distance).unsqueeze(0);
             x = layer.attend_and_gate(&x, &x_norm, &k, &v, &bias);
-            next_memory.push(last_rows(&rows.detach(), m, &next_len));
+            layer_rows.push(rows);
         }
         CoreOutput {
             output: x,
-            next_memory: Tensor::stack(&next_memory, 0),
             next_memory_len: next_len,
+            rows: layer_rows,
+            memory_len: m,
         }
     }
 }
