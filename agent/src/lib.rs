@@ -27,6 +27,7 @@ pub mod learner;
 pub mod metrics;
 pub mod model;
 pub mod optim;
+pub mod procstat;
 pub mod report;
 pub mod run_config;
 pub mod train;
