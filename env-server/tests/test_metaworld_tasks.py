@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from million_env.metaworld_tasks import ALL_TASK_NAMES, MetaWorldTaskSampler
+from million_env.metaworld_tasks import ALL_TASK_NAMES, BuiltEnvs, MetaWorldTaskSampler
 
 
 def _rollout(sampler: MetaWorldTaskSampler, episodes: int) -> list[tuple[str, int, bytes]]:
@@ -107,12 +107,26 @@ def test_negative_seed_rejected() -> None:
         sampler.seed(-1)
 
 
-def test_max_built_envs_caps_memory_and_keeps_the_sequence() -> None:
-    capped = MetaWorldTaskSampler("ML10", "train", seed=8, max_built_envs=2)
-    free = MetaWorldTaskSampler("ML10", "train", seed=8)
-    sequence = _rollout(capped, 10)
-    assert len(capped.envs()) <= 2
-    assert sequence == _rollout(free, 10)
-    assert len({name for name, _, _ in sequence}) > 2
-    with pytest.raises(ValueError, match="max_built_envs"):
-        MetaWorldTaskSampler("ML10", "train", max_built_envs=0)
+def test_samplers_share_built_envs_and_keep_their_own_sequences() -> None:
+    built = BuiltEnvs(max_idle=3)
+    alone = _rollout(MetaWorldTaskSampler("ML10", "train", seed=8, built_envs=built), 10)
+    built_before = built.builds
+    # Two samplers interleaved on the same envs: each sees what it saw alone.
+    a = MetaWorldTaskSampler("ML10", "train", seed=8, built_envs=built)
+    b = MetaWorldTaskSampler("ML10", "train", seed=9, built_envs=built)
+    mixed_a, mixed_b = [], []
+    for _ in range(10):
+        mixed_a += _rollout(a, 1)
+        mixed_b += _rollout(b, 1)
+    assert mixed_a == alone
+    assert mixed_b == _rollout(MetaWorldTaskSampler("ML10", "train", seed=9), 10)
+    assert len({name for name, _, _ in alone}) > 2
+    # Each sampler holds one env; at most 3 wait idle; idle ones were reused, not rebuilt.
+    assert len(a.envs()) == 1 and len(b.envs()) == 1
+    assert built.idle() <= 3
+    assert built.builds - built_before < 20
+    a.close()
+    b.close()
+    assert a.envs() == [] and built.idle() <= 3
+    with pytest.raises(ValueError, match="idle envs"):
+        BuiltEnvs(max_idle=-1)

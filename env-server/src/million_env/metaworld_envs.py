@@ -68,14 +68,9 @@ class MetaWorldSplitEnv(gym.Env):
         split: str,
         task: str | None = None,
         benchmark_seed: int = DEFAULT_BENCHMARK_SEED,
-        max_built_envs: int | None = None,
     ) -> None:
         self._sampler = MetaWorldTaskSampler(
-            benchmark,
-            split,
-            task=task,
-            benchmark_seed=benchmark_seed,
-            max_built_envs=max_built_envs,
+            benchmark, split, task=task, benchmark_seed=benchmark_seed
         )
         self.observation_space = split_observation_space(benchmark, split, task, benchmark_seed)
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
@@ -130,8 +125,8 @@ def register_metaworld_envs() -> dict[str, str]:
                 what = f"Meta-World v3 {benchmark} {split} classes"
             described[env_id] = (
                 f"{what}; a new task (class + goal) is sampled at every reset, seeded by "
-                f"reset(seed); {MAX_PATH_LENGTH} steps; kwargs benchmark_seed (fixes the "
-                f"goal set), max_built_envs (caps memory: ~20 MB per task class kept built)"
+                f"reset(seed); {MAX_PATH_LENGTH} steps; kwarg benchmark_seed (fixes the "
+                f"goal set)"
             )
             if env_id not in gym.registry:
                 gym.register(

@@ -2,16 +2,17 @@
 
 Meta-World's own ``reset(seed=...)`` does not seed which task or goal comes next,
 so this module owns that randomness: one ``numpy.random.Generator`` picks the
-class and the goal, and every Meta-World env gets a seed derived from the same
-seed and its task id. The same seed therefore always yields the same sequence of
-tasks, goals and reset observations.
+class and the goal, and the env of each sampled task is reseeded from the same
+generator. The same seed therefore always yields the same sequence of tasks, goals
+and reset observations, even though built envs are shared by every sampler of a
+process (`BuiltEnvs`).
 """
 
 from __future__ import annotations
 
 import functools
-import random
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -87,11 +88,74 @@ def parse_task_order(task_order: str) -> bool:
     return task_order == "cycle"
 
 
+#: Idle built envs a server process keeps by default (see `BuiltEnvs`). Measured on ML10 and
+#: ML45 with 32 slots per process (BENCHMARKS.md): 16 idle envs keep memory near 30 MB per slot
+#: while a new task finds its class already built in most resets.
+DEFAULT_IDLE_ENVS = 16
+
+
+class BuiltEnvs:
+    """The Meta-World envs built in this process, shared by every sampler.
+
+    A built env costs ~20 MB and ~0.1 s to build. A sampler holds only the env of its current
+    task and gives it back when it samples the next one, so a process holds one env per slot
+    in use plus at most `max_idle` idle ones, instead of one per slot per class (ML45, 32
+    slots: 48 envs instead of 1,440). When too many are idle, one of the class with the most
+    idle copies is closed, which keeps every class at hand for longer than plain LRU.
+    Thread-safe: batches step their envs on worker threads.
+    """
+
+    def __init__(self, max_idle: int = DEFAULT_IDLE_ENVS) -> None:
+        self._lock = threading.Lock()
+        self._idle: dict[tuple[Any, ...], list[Any]] = {}
+        self.max_idle = max_idle
+        self.builds = 0
+
+    @property
+    def max_idle(self) -> int:
+        return self._max_idle
+
+    @max_idle.setter
+    def max_idle(self, value: int) -> None:
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            raise ValueError(f"idle envs must be a non-negative integer, got {value!r}")
+        self._max_idle = value
+
+    def idle(self) -> int:
+        with self._lock:
+            return sum(len(envs) for envs in self._idle.values())
+
+    def take(self, key: tuple[Any, ...], build: Callable[[], Any]) -> Any:
+        """An idle env of `key`, else a new one from `build()` (built outside the lock)."""
+        with self._lock:
+            envs = self._idle.get(key)
+            if envs:
+                return envs.pop()
+            self.builds += 1
+        return build()
+
+    def give_back(self, key: tuple[Any, ...], env: Any) -> None:
+        closing = None
+        with self._lock:
+            self._idle.setdefault(key, []).append(env)
+            if sum(len(envs) for envs in self._idle.values()) > self._max_idle:
+                fullest = max(self._idle.values(), key=len)
+                closing = fullest.pop(0)  # its least recently returned
+        if closing is not None:
+            closing.close()
+
+
+#: The process's shared envs; `million-env-server --idle-envs` sets its cap.
+BUILT_ENVS = BuiltEnvs()
+
+
 class MetaWorldTaskSampler:
     """Seeded sampling of a (task class, goal variation) from a Meta-World v3 benchmark split.
 
-    One Meta-World env per task class is built once (on first use) and reused;
-    ``max_built_envs`` bounds how many stay built (least recently used are closed).
+    The env of a sampled task comes from the process's `BUILT_ENVS` and goes back there at
+    the next `sample()` or `close()`. Because an env may have served another sampler, it is
+    reseeded from this sampler's generator at every sample: the same seed gives the same
+    tasks, goals and observations whatever else the process runs.
 
     ``task_order="cycle"`` takes the classes in turn instead of at random, starting at
     class ``seed mod n`` after ``seed(seed)``: envs seeded ``s + i`` then cover every class
@@ -105,16 +169,13 @@ class MetaWorldTaskSampler:
         task: str | None = None,
         seed: int | None = None,
         benchmark_seed: int = DEFAULT_BENCHMARK_SEED,
-        max_built_envs: int | None = None,
         task_order: str = "random",
+        built_envs: BuiltEnvs | None = None,
     ) -> None:
         _validate(benchmark, split, task)
         self._cycle = parse_task_order(task_order)
-        if max_built_envs is not None and max_built_envs < 1:
-            raise ValueError(f"max_built_envs must be at least 1, got {max_built_envs}")
-        # Each built Meta-World env holds ~20 MB; ML45 builds up to 45 of them per
-        # sampler unless this caps it (least recently used ones are closed).
-        self._max_built_envs = max_built_envs
+        self._built = BUILT_ENVS if built_envs is None else built_envs
+        self._key_prefix = (benchmark, task, benchmark_seed)
         self.benchmark = benchmark
         self.split = split
         bench = load_benchmark(benchmark, task, benchmark_seed)
@@ -125,26 +186,22 @@ class MetaWorldTaskSampler:
         self._tasks_by_name: dict[str, list[Any]] = {name: [] for name in self.task_names}
         for mw_task in tasks:
             self._tasks_by_name[mw_task.env_name].append(mw_task)
-        self._envs: dict[str, Any] = {}
-        self._seed: int | None = None
+        self._held: tuple[str, Any] | None = None
         self._rng = np.random.default_rng()
         self._next_class = 0
         if seed is not None:
             self.seed(seed)
 
     def seed(self, seed: int) -> None:
-        """Reseeds the task/goal sampling and every Meta-World env's own RNG."""
+        """Restarts the task/goal sequence and the env seeds drawn with it."""
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-        self._seed = int(seed)
-        self._rng = np.random.default_rng(self._seed)
-        self._next_class = self._seed % len(self.task_names)
-        for name, env in self._envs.items():
-            env.seed(self._env_seed(name))
+        self._rng = np.random.default_rng(int(seed))
+        self._next_class = int(seed) % len(self.task_names)
 
     def sample(self) -> SampledTask:
-        """Picks a class (uniformly, or the next in turn), then one of its goals uniformly;
-        sets that task on the class's env."""
+        """Picks a class (uniformly, or the next in turn) and one of its goals uniformly;
+        returns an env of that class, reseeded, with that task set."""
         if self._cycle:
             name = self.task_names[self._next_class]
             self._next_class = (self._next_class + 1) % len(self.task_names)
@@ -152,34 +209,23 @@ class MetaWorldTaskSampler:
             name = self.task_names[int(self._rng.integers(len(self.task_names)))]
         goals = self._tasks_by_name[name]
         mw_task = goals[int(self._rng.integers(len(goals)))]
-        env = self._env(name)
+        env_seed = int(self._rng.integers(2**31))
+        self._give_back()
+        env = self._built.take((*self._key_prefix, name), self._classes[name])
+        self._held = (name, env)
+        env.seed(env_seed)
         env.set_task(mw_task)
         return SampledTask(name=name, task_id=_TASK_IDS[name], env=env)
 
     def envs(self) -> list[Any]:
-        """The Meta-World envs built now, least recently used first."""
-        return list(self._envs.values())
+        """The env this sampler holds now (empty before the first sample)."""
+        return [] if self._held is None else [self._held[1]]
 
     def close(self) -> None:
-        for env in self._envs.values():
-            env.close()
-        self._envs.clear()
+        self._give_back()
 
-    def _env(self, name: str) -> Any:
-        env = self._envs.pop(name, None)
-        if env is None:
-            if self._max_built_envs is not None and len(self._envs) >= self._max_built_envs:
-                oldest = next(iter(self._envs))
-                self._envs.pop(oldest).close()
-            env = self._classes[name]()
-            env.seed(self._env_seed(name))
-        self._envs[name] = env  # (re)inserted last: the dict's order is recency
-        return env
-
-    def _env_seed(self, name: str) -> int:
-        # Derived from (seed, task id) so that it does not depend on the order in
-        # which classes were first sampled.
-        if self._seed is None:
-            return random.SystemRandom().randrange(2**31)
-        seq = np.random.SeedSequence([self._seed, _TASK_IDS[name]])
-        return int(seq.generate_state(1)[0] & 0x7FFFFFFF)
+    def _give_back(self) -> None:
+        if self._held is not None:
+            name, env = self._held
+            self._held = None
+            self._built.give_back((*self._key_prefix, name), env)
