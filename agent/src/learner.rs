@@ -11,6 +11,7 @@ use crate::algo::vmpo;
 use crate::config::{AgentConfig, KlReference, MultiplierForm, VmpoConfig};
 use crate::model::Model;
 use crate::model::policy::gaussian_log_prob;
+use crate::model::popart::{PopArtState, PopArtSummary};
 use crate::optim::Adam;
 
 /// The Lagrange multipliers η, α_μ, α_Σ as trainable scalars. In clamp form the variables are
@@ -99,6 +100,27 @@ pub struct UpdateMetrics {
     pub value_steps: i64,
     pub popart_mean_sigma: f64,
     pub mean_std: f64,
+}
+
+/// The loss terms of one batch (steps 1–6 of an update) and what the metrics need.
+struct Losses {
+    loss: Tensor,
+    policy_loss: Tensor,
+    temperature_loss: Tensor,
+    alpha_mu_loss: Tensor,
+    alpha_sigma_loss: Tensor,
+    value_loss: Tensor,
+    kl_mu: Tensor,
+    kl_sigma: Tensor,
+    returns: Tensor,
+    advantages: Tensor,
+    std: Tensor,
+    policy_mask: Tensor,
+    value_w: Tensor,
+    selected: i64,
+    popart: PopArtSummary,
+    /// The Pop-Art statistics and output layer before the update moved them.
+    popart_before: PopArtState,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -226,6 +248,45 @@ impl Learner {
     /// The value loss uses `value_mask`; the policy, temperature and KL terms `policy_mask`.
     /// Nothing is changed (Pop-Art statistics included) when the loss or a gradient is not finite.
     pub fn update(&mut self, batch: &SegmentBatch) -> Result<UpdateMetrics, LearnerError> {
+        let l = self.losses(batch)?;
+
+        // 7. One Adam step over network, Pop-Art layer and multipliers.
+        let loss_value = l.loss.double_value(&[]);
+        if !loss_value.is_finite() {
+            self.model.popart_mut().restore(&l.popart_before);
+            return Err(LearnerError::NonFinite(loss_value));
+        }
+        self.adam.zero_grad();
+        l.loss.backward();
+        if !self.adam.gradients_finite() {
+            self.adam.zero_grad();
+            self.model.popart_mut().restore(&l.popart_before);
+            return Err(LearnerError::NonFiniteGradient(loss_value));
+        }
+        self.adam.step();
+        self.multipliers.project(self.cfg.vmpo.min_multiplier);
+        self.updates += 1;
+        if self
+            .updates
+            .is_multiple_of(self.cfg.buffer.target_period as u64)
+        {
+            self.sync_target();
+        }
+        Ok(self.metrics(&l, loss_value))
+    }
+
+    /// The metrics an update on `batch` would report, computed without changing anything: no
+    /// step, and the Pop-Art statistics the loss needs moved are put back (the multipliers
+    /// are the current ones). For checks against other implementations of the same loss.
+    pub fn loss_terms(&mut self, batch: &SegmentBatch) -> Result<UpdateMetrics, LearnerError> {
+        let l = tch::no_grad(|| self.losses(batch))?;
+        self.model.popart_mut().restore(&l.popart_before);
+        let loss_value = l.loss.double_value(&[]);
+        Ok(self.metrics(&l, loss_value))
+    }
+
+    /// Steps 1–6 of [`Learner::update`]: the loss terms, with the Pop-Art statistics moved.
+    fn losses(&mut self, batch: &SegmentBatch) -> Result<Losses, LearnerError> {
         let device = self.vs.device();
         let b = batch.to_device(device);
         let cfg = &self.cfg;
@@ -335,53 +396,56 @@ impl Learner {
             &policy_mask,
         );
 
-        // 7. One Adam step over network, Pop-Art layer and multipliers.
         let loss =
             &policy_loss + &temperature_loss + &alpha_mu_loss + &alpha_sigma_loss + &value_loss;
-        let loss_value = loss.double_value(&[]);
-        if !loss_value.is_finite() {
-            self.model.popart_mut().restore(&popart_before);
-            return Err(LearnerError::NonFinite(loss_value));
-        }
-        self.adam.zero_grad();
-        loss.backward();
-        if !self.adam.gradients_finite() {
-            self.adam.zero_grad();
-            self.model.popart_mut().restore(&popart_before);
-            return Err(LearnerError::NonFiniteGradient(loss_value));
-        }
-        self.adam.step();
-        m.project(cfg.vmpo.min_multiplier);
-        self.updates += 1;
-        if self.updates.is_multiple_of(cfg.buffer.target_period as u64) {
-            self.sync_target();
-        }
+        Ok(Losses {
+            loss,
+            policy_loss,
+            temperature_loss,
+            alpha_mu_loss,
+            alpha_sigma_loss,
+            value_loss,
+            kl_mu,
+            kl_sigma,
+            returns: g,
+            advantages,
+            std,
+            policy_mask,
+            value_w,
+            selected,
+            popart,
+            popart_before,
+        })
+    }
 
-        let pw = policy_mask.to_kind(Kind::Float);
+    /// The scalars of an update from its loss terms (multipliers as they are now).
+    fn metrics(&self, l: &Losses, loss_value: f64) -> UpdateMetrics {
+        let m = &self.multipliers;
+        let pw = l.policy_mask.to_kind(Kind::Float);
         let policy_steps = pw.sum(Kind::Float).double_value(&[]);
         let masked_mean = |x: &Tensor, w: &Tensor, count: f64| {
             (x.detach() * w).sum(Kind::Float).double_value(&[]) / count.max(1.0)
         };
-        let value_steps = value_w.sum(Kind::Float).double_value(&[]);
-        Ok(UpdateMetrics {
+        let value_steps = l.value_w.sum(Kind::Float).double_value(&[]);
+        UpdateMetrics {
             loss: loss_value,
-            policy_loss: policy_loss.double_value(&[]),
-            temperature_loss: temperature_loss.double_value(&[]),
-            alpha_mu_loss: alpha_mu_loss.double_value(&[]),
-            alpha_sigma_loss: alpha_sigma_loss.double_value(&[]),
-            value_loss: value_loss.double_value(&[]),
+            policy_loss: l.policy_loss.double_value(&[]),
+            temperature_loss: l.temperature_loss.double_value(&[]),
+            alpha_mu_loss: l.alpha_mu_loss.double_value(&[]),
+            alpha_sigma_loss: l.alpha_sigma_loss.double_value(&[]),
+            value_loss: l.value_loss.double_value(&[]),
             eta: m.eta().double_value(&[]),
             alpha_mu: m.alpha_mu().double_value(&[]),
             alpha_sigma: m.alpha_sigma().double_value(&[]),
-            kl_mu: masked_mean(&kl_mu, &pw, policy_steps),
-            kl_sigma: masked_mean(&kl_sigma, &pw, policy_steps),
-            mean_return: masked_mean(&g, &value_w, value_steps),
-            mean_advantage: masked_mean(&advantages, &pw, policy_steps),
+            kl_mu: masked_mean(&l.kl_mu, &pw, policy_steps),
+            kl_sigma: masked_mean(&l.kl_sigma, &pw, policy_steps),
+            mean_return: masked_mean(&l.returns, &l.value_w, value_steps),
+            mean_advantage: masked_mean(&l.advantages, &pw, policy_steps),
             policy_steps: policy_steps as i64,
-            selected_steps: selected,
+            selected_steps: l.selected,
             value_steps: value_steps as i64,
-            popart_mean_sigma: popart.mean_sigma,
-            mean_std: masked_mean(&std.mean_dim(-1, false, Kind::Float), &pw, policy_steps),
-        })
+            popart_mean_sigma: l.popart.mean_sigma,
+            mean_std: masked_mean(&l.std.mean_dim(-1, false, Kind::Float), &pw, policy_steps),
+        }
     }
 }

@@ -67,7 +67,9 @@ pub use client::{
 };
 pub use conformance::{Report, run_conformance};
 pub use error::{EnvError, Result};
-pub use local_server::{LocalServer, LocalServerError, LocalServerOptions, default_server_binary};
+pub use local_server::{
+    LocalServer, LocalServerError, LocalServerOptions, default_server_binary, find_in_repository,
+};
 pub use observation::{FLAT_FIELD, Fields, InfoBatch, InfoField, Observation};
 pub use pool::{
     DnsResolver, EnvPool, PoolConfig, PoolStats, ResetBatch, Resolve, ResolveFuture, StepBatch,

@@ -86,6 +86,14 @@ pub fn default_server_binary() -> Result<PathBuf, LocalServerError> {
         };
     }
     let relative = Path::new(".venv/bin/million-env-server");
+    find_in_repository(relative)
+        .ok_or_else(|| LocalServerError::BinaryMissing(relative.to_path_buf()))
+}
+
+/// `relative` (e.g. `.venv/bin/python`) under the first repository root that has it:
+/// `$MILLION_ROOT`, an ancestor of the running executable (the repository, for
+/// `target/release/million`), or this crate's repository.
+pub fn find_in_repository(relative: &Path) -> Option<PathBuf> {
     let mut roots: Vec<PathBuf> = Vec::new();
     if let Some(root) = std::env::var_os("MILLION_ROOT") {
         roots.push(root.into());
@@ -98,7 +106,6 @@ pub fn default_server_binary() -> Result<PathBuf, LocalServerError> {
         .iter()
         .map(|root| root.join(relative))
         .find(|candidate| candidate.exists())
-        .ok_or_else(|| LocalServerError::BinaryMissing(relative.to_path_buf()))
 }
 
 impl LocalServer {

@@ -2,25 +2,35 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use clap::{Args, Subcommand};
+use serde::Serialize;
 use tch::{Device, Kind, Tensor};
 
 use crate::algo::buffer::SegmentBatch;
 use crate::config::AgentConfig;
 use crate::learner::Learner;
+use crate::procstat::{self, ChildSampler, ProcessUsage};
 use crate::run_config::RunConfig;
 use crate::train::session::{TrainOptions, train};
 
 #[derive(Debug, Subcommand)]
 pub enum BenchCommand {
     /// Learner updates per second on random segments of the config's sizes.
-    Learner(ModelBench),
+    Learner {
+        #[command(flatten)]
+        bench: ModelBench,
+        #[command(flatten)]
+        reference: super::bench_reference::ReferenceArgs,
+    },
     /// Acting steps per second (all env slots) of the config's model, no envs.
     Acting(ModelBench),
-    /// End-to-end training throughput: agent steps/s, updates/s, actor/learner CPU split.
+    /// End-to-end training throughput: agent steps/s, updates/s, actor/learner CPU split,
+    /// CPU seconds and peak memory of the agent and of every local env server.
     Train(TrainBench),
+    /// Env steps/s served through the API against the same envs stepped in-process.
+    Env(super::bench_env::EnvBench),
 }
 
 #[derive(Debug, Args)]
@@ -40,6 +50,9 @@ pub struct TrainBench {
     pub seconds: f64,
     #[arg(long = "env-server")]
     pub env_servers: Vec<String>,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
 }
 
 fn random_batch(cfg: &AgentConfig, b: i64) -> SegmentBatch {
@@ -69,7 +82,13 @@ fn random_batch(cfg: &AgentConfig, b: i64) -> SegmentBatch {
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
     match cmd {
-        BenchCommand::Learner(b) => {
+        BenchCommand::Learner {
+            bench: b,
+            reference,
+        } => {
+            if reference.reference {
+                return super::bench_reference::run(&b.config, b.iters, &reference, random_batch);
+            }
             let cfg = RunConfig::from_file(&b.config)?;
             cfg.runtime.apply();
             let agent = cfg.agent();
@@ -114,31 +133,88 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
                 rows as f64 * steps as f64 / s
             );
         }
-        BenchCommand::Train(b) => {
-            let mut cfg = RunConfig::from_file(&b.config)?;
-            cfg.train.total_agent_steps = u64::MAX;
-            let rt = super::runtime(cfg.runtime.io_threads)?;
-            let summary = rt.block_on(train(TrainOptions {
-                config: cfg,
-                servers: b.env_servers,
-                env_access: Default::default(),
-                run_dir: None,
-                resume: false,
-                progress: false,
-                max_seconds: Some(b.seconds),
-                evaluate: false,
-                interrupt: Arc::new(AtomicBool::new(false)),
-            }))?;
-            println!(
-                "train: {:.0} agent steps/s, {:.2} updates/s over {:.0} s; CPU actor thread {:.0}% , learner thread {:.0}% of wall time; replay ratio {:.2}",
-                summary.agent_steps_per_s,
-                summary.updates_per_s,
-                summary.wall_s,
-                100.0 * summary.actor_cpu_s / summary.wall_s,
-                100.0 * summary.learner_cpu_s / summary.wall_s,
-                summary.replay_ratio
-            );
-        }
+        BenchCommand::Train(b) => train_bench(b)?,
+        BenchCommand::Env(b) => return super::bench_env::run(&b),
     }
     Ok(ExitCode::SUCCESS)
+}
+
+#[derive(Debug, Serialize)]
+struct TrainBenchReport {
+    agent_steps_per_s: f64,
+    updates_per_s: f64,
+    wall_s: f64,
+    replay_ratio: f64,
+    actor_thread_cpu_share: f64,
+    learner_thread_cpu_share: f64,
+    agent: ProcessUsage,
+    env_servers: Vec<ProcessUsage>,
+}
+
+fn train_bench(b: TrainBench) -> anyhow::Result<()> {
+    let mut cfg = RunConfig::from_file(&b.config)?;
+    cfg.train.total_agent_steps = u64::MAX;
+    let rt = super::runtime(cfg.runtime.io_threads)?;
+    let children = ChildSampler::start(Duration::from_millis(500));
+    let summary = rt.block_on(train(TrainOptions {
+        config: cfg,
+        servers: b.env_servers,
+        env_access: Default::default(),
+        run_dir: None,
+        resume: false,
+        progress: false,
+        max_seconds: Some(b.seconds),
+        evaluate: false,
+        interrupt: Arc::new(AtomicBool::new(false)),
+    }))?;
+    let env_servers = children.finish();
+    let agent = procstat::usage(std::process::id()).unwrap_or_default();
+    let report = TrainBenchReport {
+        agent_steps_per_s: summary.agent_steps_per_s,
+        updates_per_s: summary.updates_per_s,
+        wall_s: summary.wall_s,
+        replay_ratio: summary.replay_ratio,
+        actor_thread_cpu_share: summary.actor_cpu_s / summary.wall_s,
+        learner_thread_cpu_share: summary.learner_cpu_s / summary.wall_s,
+        agent,
+        env_servers,
+    };
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    println!(
+        "train: {:.0} agent steps/s, {:.2} updates/s over {:.0} s; CPU actor thread {:.0}% , learner thread {:.0}% of wall time; replay ratio {:.2}",
+        report.agent_steps_per_s,
+        report.updates_per_s,
+        report.wall_s,
+        100.0 * report.actor_thread_cpu_share,
+        100.0 * report.learner_thread_cpu_share,
+        report.replay_ratio
+    );
+    let all = std::iter::once(("agent", &report.agent))
+        .chain(report.env_servers.iter().map(|u| ("env server", u)));
+    let mut total_rss = 0.0;
+    for (role, u) in all {
+        total_rss += u.peak_rss_mb;
+        println!(
+            "  {role:<10} pid {:>7}: {:>7.1} CPU s ({:>3.0}% of a core), peak RSS {:>7.0} MB",
+            u.pid,
+            u.cpu_s,
+            100.0 * u.cpu_s / report.wall_s,
+            u.peak_rss_mb
+        );
+    }
+    println!("  peak RSS summed over processes: {total_rss:.0} MB");
+    Ok(())
+}
+
+/// The 1-minute load average, reported with timings: other work on the machine skews them.
+pub(super) fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }

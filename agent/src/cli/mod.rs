@@ -2,6 +2,8 @@
 
 mod access;
 mod bench;
+mod bench_env;
+mod bench_reference;
 mod env_check;
 mod eval;
 mod report;

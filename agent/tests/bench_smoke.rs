@@ -1,0 +1,105 @@
+//! Tiny runs of `million bench env|train|learner|acting`, so the benchmarks keep working.
+//! They check what each reports is there and sane; a timing is never asserted.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn million(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_million"))
+        .args(args)
+        .current_dir(repo())
+        .env("MILLION_ROOT", repo())
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("million runs");
+    assert!(
+        out.status.success(),
+        "million {args:?}: {}\n{}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
+#[test]
+fn bench_env_compares_served_with_in_process_steps() {
+    let out = million(&[
+        "bench",
+        "env",
+        "--env",
+        "CartPole-v1",
+        "--batch",
+        "2",
+        "--servers",
+        "1",
+        "--seconds",
+        "0.5",
+        "--latency-steps",
+        "50",
+        "--json",
+    ]);
+    let report: Value = serde_json::from_str(&out).unwrap();
+    let case = &report["cases"][0];
+    assert_eq!(case["env"], "CartPole-v1");
+    assert_eq!(case["batch"], 2);
+    let served = case["served_steps_per_s"].as_f64().unwrap();
+    let in_process = case["in_process_steps_per_s"].as_f64().unwrap();
+    assert!(served > 0.0 && in_process > 0.0, "{case}");
+    assert!((case["ratio"].as_f64().unwrap() - served / in_process).abs() < 1e-9);
+    let latency = &report["latency"];
+    assert_eq!(latency["round_trips"], 50);
+    assert!(latency["p50_us"].as_f64().unwrap() <= latency["p99_us"].as_f64().unwrap());
+}
+
+#[test]
+fn bench_train_reports_every_process() {
+    let out = million(&[
+        "bench",
+        "train",
+        "--config",
+        "configs/quickstart.toml",
+        "--seconds",
+        "4",
+        "--json",
+    ]);
+    let report: Value = serde_json::from_str(&out).unwrap();
+    assert!(
+        report["agent_steps_per_s"].as_f64().unwrap() > 0.0,
+        "{report}"
+    );
+    assert!(report["agent"]["peak_rss_mb"].as_f64().unwrap() > 10.0);
+    assert!(report["agent"]["cpu_s"].as_f64().unwrap() > 0.0);
+    // quickstart.toml runs one local env server; its CPU time and memory are counted.
+    let servers = report["env_servers"].as_array().unwrap();
+    assert_eq!(servers.len(), 1, "{report}");
+    assert!(servers[0]["cpu_s"].as_f64().unwrap() > 0.0);
+    assert!(servers[0]["peak_rss_mb"].as_f64().unwrap() > 10.0);
+}
+
+#[test]
+fn bench_learner_and_acting_run_on_the_quickstart_model() {
+    let learner = million(&[
+        "bench",
+        "learner",
+        "--config",
+        "configs/quickstart.toml",
+        "--iters",
+        "1",
+    ]);
+    assert!(learner.contains("s/update"), "{learner}");
+    let acting = million(&[
+        "bench",
+        "acting",
+        "--config",
+        "configs/quickstart.toml",
+        "--iters",
+        "1",
+    ]);
+    assert!(acting.contains("agent steps/s"), "{acting}");
+}
