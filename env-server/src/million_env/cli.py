@@ -42,7 +42,17 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="close env handles without calls for this long (a client that died); 0 = never",
     )
     parser.add_argument(
-        "--workers", type=int, default=None, help="threads stepping environments (default: auto)"
+        "--workers",
+        type=int,
+        default=None,
+        help="threads that make, reset, render and close envs (and step them with "
+        "--step-threads); default: auto",
+    )
+    parser.add_argument(
+        "--step-threads",
+        action="store_true",
+        help="step envs on the worker threads instead of the event loop's thread (for envs "
+        "that release the GIL while they step; Python envs step faster inline)",
     )
     parser.add_argument(
         "--idle-envs",
@@ -129,6 +139,7 @@ def main(argv: list[str] | None = None) -> None:
             token=args.token,
             tls=tls,
             shutdown_grace_s=args.shutdown_grace,
+            step_threads=args.step_threads,
         )
     )
 

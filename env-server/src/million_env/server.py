@@ -60,6 +60,7 @@ async def serve(
     token: str | None = None,
     tls: ServerTls | None = None,
     shutdown_grace_s: float = 5.0,
+    step_threads: bool = False,
 ) -> None:
     """Serves until SIGINT/SIGTERM; prints the bound port for scripts that pass :0.
     Health turns SERVING once the preloads are built."""
@@ -73,7 +74,7 @@ async def serve(
             ("grpc.max_send_message_length", MAX_MESSAGE_BYTES),
         ],
     )
-    service = EnvService(limits, executor, stats)
+    service = EnvService(limits, executor, stats, step_threads=step_threads)
     server.add_generic_rpc_handlers((method_handlers(service, stats.error),))
     health_servicer = health.aio.HealthServicer()
     health_pb2_grpc.add_HealthServicer_to_server(health_servicer, server)

@@ -71,9 +71,15 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         limits: ServerLimits,
         executor: ThreadPoolExecutor,
         stats: ServerStats | None = None,
+        step_threads: bool = False,
     ) -> None:
         self._limits = limits
         self._executor = executor
+        # Steps run on the event loop's thread unless step_threads: Python envs hold the GIL
+        # while they step, so a worker thread adds a hand-off and GIL contention with the
+        # loop and no parallelism (measured: 2 servers on 2 cores served 45% more ML10 steps
+        # inline; BENCHMARKS.md). Make, Reset, Render and Close stay on the worker threads.
+        self._step_threads = step_threads
         self.stats = stats or ServerStats()
         self._handles: dict[str, _Handle] = {}
         self._envs_reserved = 0
@@ -164,7 +170,10 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         handle = self._handle(request.handle)
         async with handle.lock:
             self._handle(request.handle)
-            response = await self._in_thread(lambda: handle.batch.step(request.action))
+            if self._step_threads:
+                response = await self._in_thread(lambda: handle.batch.step(request.action))
+            else:
+                response = handle.batch.step(request.action)
         self._steps_served += handle.batch.num_envs
         self.stats.steps(handle.batch.num_envs)
         return response
