@@ -21,11 +21,7 @@ pub struct ProcessUsage {
 
 /// Usage of `pid` now; None once it has exited (or off Linux).
 pub fn usage(pid: u32) -> Option<ProcessUsage> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // Fields after the command, which is in parentheses and may hold spaces.
-    let (head, rest) = stat.rsplit_once(") ")?;
-    let command = head.split_once(" (")?.1.to_owned();
-    let fields: Vec<&str> = rest.split_whitespace().collect();
+    let (command, fields) = stat(pid)?;
     // utime and stime are fields 14 and 15 of stat, i.e. 12 and 13 after the state field.
     let ticks: f64 = fields.get(11)?.parse::<f64>().ok()? + fields.get(12)?.parse::<f64>().ok()?;
     let status = std::fs::read_to_string(format!("/proc/{pid}/status")).ok()?;
@@ -50,6 +46,18 @@ fn clock_ticks_per_s() -> f64 {
     if t > 0 { t as f64 } else { 100.0 }
 }
 
+/// `/proc/PID/stat`: the command, and the fields after it (the state first). The command is
+/// in parentheses and may hold spaces, so the fields start after the last `") "`.
+fn stat(pid: u32) -> Option<(String, Vec<String>)> {
+    let text = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    let (head, rest) = text.rsplit_once(") ")?;
+    let command = head.split_once(" (")?.1.to_owned();
+    Some((
+        command,
+        rest.split_whitespace().map(str::to_owned).collect(),
+    ))
+}
+
 /// The pids whose parent is `parent`.
 pub fn children(parent: u32) -> Vec<u32> {
     let Ok(dir) = std::fs::read_dir("/proc") else {
@@ -57,13 +65,8 @@ pub fn children(parent: u32) -> Vec<u32> {
     };
     dir.filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
         .filter(|&pid| {
-            std::fs::read_to_string(format!("/proc/{pid}/stat"))
-                .ok()
-                .and_then(|s| {
-                    let rest = s.rsplit_once(") ")?.1.to_owned();
-                    rest.split_whitespace().nth(1)?.parse::<u32>().ok()
-                })
-                == Some(parent)
+            // The parent pid is the field after the state.
+            stat(pid).and_then(|(_, fields)| fields.get(1)?.parse::<u32>().ok()) == Some(parent)
         })
         .collect()
 }

@@ -1,4 +1,4 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
@@ -217,4 +217,13 @@ pub(super) fn load_average() -> Option<f64> {
         .next()?
         .parse()
         .ok()
+}
+
+/// The Python that runs a bench's Python side: `explicit` (`--python`), else the
+/// repository's `.venv/bin/python`, else `python3` on PATH.
+pub(super) fn python(explicit: Option<&Path>) -> PathBuf {
+    explicit
+        .map(Path::to_path_buf)
+        .or_else(|| million_env::find_in_repository(Path::new(".venv/bin/python")))
+        .unwrap_or_else(|| "python3".into())
 }

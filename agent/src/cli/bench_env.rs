@@ -72,11 +72,7 @@ struct Report {
 
 pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.seconds > 0.0, "--seconds must be positive");
-    let python = args
-        .python
-        .clone()
-        .or_else(|| find_in_repository(Path::new(".venv/bin/python")))
-        .unwrap_or_else(|| "python3".into());
+    let python = super::bench::python(args.python.as_deref());
     let script = find_in_repository(Path::new("env-server/benchmarks/inprocess_rate.py"))
         .context("env-server/benchmarks/inprocess_rate.py not found (set MILLION_ROOT)")?;
     let binary = default_server_binary()?;

@@ -58,13 +58,6 @@ pub struct ReferenceArgs {
     pub json: bool,
 }
 
-fn python(args: &ReferenceArgs) -> PathBuf {
-    args.python
-        .clone()
-        .or_else(|| find_in_repository(Path::new(".venv/bin/python")))
-        .unwrap_or_else(|| "python3".into())
-}
-
 /// Fails clearly when `python` cannot run or has no torch; its torch version otherwise.
 fn torch_version(python: &Path) -> anyhow::Result<String> {
     let out = Command::new(python)
@@ -277,7 +270,7 @@ pub fn run(
     if iters == 0 || args.rounds == 0 || args.threads.contains(&0) {
         bail!("--iters, --rounds and every --threads must be at least 1");
     }
-    let python = python(args);
+    let python = super::bench::python(args.python.as_deref());
     let torch = torch_version(&python)?;
     let script = find_in_repository(Path::new(SCRIPT))
         .with_context(|| format!("{SCRIPT} not found (set MILLION_ROOT to the repository)"))?;
