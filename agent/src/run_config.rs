@@ -50,6 +50,21 @@ pub struct EnvConfig {
     pub make_timeout_s: u64,
 }
 
+/// Env seeds of replicate n start at n · REPLICATE_SEED_STRIDE, so replicates of a run with
+/// fewer envs than this never share an env seed.
+pub const REPLICATE_SEED_STRIDE: u64 = 10_000;
+
+impl EnvConfig {
+    /// Makes this config replicate `n` of a run (`million train --seed n`): the agent's seed
+    /// is n and env i is seeded with n · REPLICATE_SEED_STRIDE + i. Replicate 0 is the config
+    /// as shipped (seed 0, agent_seed 0). The evaluation seeds stay: every replicate is
+    /// scored on the same episodes.
+    pub fn replicate(&mut self, n: u64) {
+        self.agent_seed = n;
+        self.seed = n * REPLICATE_SEED_STRIDE;
+    }
+}
+
 impl Default for EnvConfig {
     fn default() -> Self {
         Self {
@@ -273,6 +288,18 @@ fn value_from_toml(v: &toml::Value, what: &str) -> Result<Value, ConfigError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn replicates_differ_in_every_seed_but_the_evaluation_ones() {
+        let base = RunConfig::from_toml_str("").unwrap();
+        let mut zero = base.clone();
+        zero.env.replicate(0);
+        assert_eq!(zero, base, "replicate 0 is the shipped config");
+        let mut two = base.clone();
+        two.env.replicate(2);
+        assert_eq!((two.env.agent_seed, two.env.seed), (2, 20_000));
+        assert_eq!(two.eval, base.eval);
+    }
 
     #[test]
     fn kwargs_keep_their_types() {

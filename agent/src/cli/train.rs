@@ -24,6 +24,10 @@ pub struct TrainArgs {
     /// Continue from the newest checkpoint in the run directory.
     #[arg(long)]
     pub resume: bool,
+    /// Replicate N of the run: agent seed N, env seeds N·10000 + i (the config's seeds are
+    /// replaced; evaluation seeds are kept). Default run directory runs/<config name>-seedN.
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -32,14 +36,18 @@ pub struct TrainArgs {
 }
 
 pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
-    let config = RunConfig::from_file(&a.config)?;
+    let mut config = RunConfig::from_file(&a.config)?;
+    if let Some(n) = a.seed {
+        config.env.replicate(n);
+    }
     let env_access = a.access.resolve()?;
     let run_dir = a.run_dir.unwrap_or_else(|| {
-        PathBuf::from("runs").join(
-            a.config
-                .file_stem()
-                .map_or_else(|| "run".into(), |s| s.to_string_lossy().into_owned()),
-        )
+        let name = a
+            .config
+            .file_stem()
+            .map_or_else(|| "run".into(), |s| s.to_string_lossy().into_owned());
+        let suffix = a.seed.map(|n| format!("-seed{n}")).unwrap_or_default();
+        PathBuf::from("runs").join(name + &suffix)
     });
     let rt = super::runtime(config.runtime.io_threads)?;
     let interrupt = Arc::new(AtomicBool::new(false));
