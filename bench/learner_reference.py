@@ -217,8 +217,57 @@ class SegmentOutput:
     value_features: Tensor
 
 
+class ObsNorm(nn.Module):
+    """Running per-feature normalisation of the chosen token fields (model/obs_norm.rs)."""
+
+    CLIP = 10.0
+
+    def __init__(self, mc: Config) -> None:
+        super().__init__()
+        chosen = set(mc["obs_norm"])
+        applied = [f["key"] in chosen for f in mc["observation"] for _ in range(f["size"])]
+        obs = len(applied)
+        self.register_buffer("mean", torch.zeros(obs, dtype=torch.float64))
+        self.register_buffer("var", torch.ones(obs, dtype=torch.float64))
+        self.register_buffer("count", torch.zeros(1, dtype=torch.float64))
+        self.register_buffer("applied", torch.tensor(applied))
+        self.pending_n = 0
+        self.register_buffer("pending_sum", torch.zeros(obs, dtype=torch.float64))
+        self.register_buffer("pending_sq", torch.zeros(obs, dtype=torch.float64))
+
+    def forward(self, obs: Tensor) -> Tensor:
+        scale = (self.var + 1e-8).rsqrt().to(obs.dtype)
+        normalised = ((obs - self.mean.to(obs.dtype)) * scale).clamp(-self.CLIP, self.CLIP)
+        return torch.where(self.applied, normalised, obs)
+
+    @torch.no_grad()
+    def observe(self, obs: Tensor) -> None:
+        """Adds the rows of `obs` to the pending moments (used from the next commit on)."""
+        x = obs.reshape(-1, obs.shape[-1]).double()
+        self.pending_n += x.shape[0]
+        self.pending_sum += x.sum(0)
+        self.pending_sq += x.square().sum(0)
+
+    @torch.no_grad()
+    def commit(self) -> None:
+        n, seen = float(self.pending_n), self.count.item()
+        if n == 0:
+            return
+        total = seen + n
+        batch_mean = self.pending_sum / n
+        batch_var = (self.pending_sq / n - batch_mean.square()).clamp_min(0.0)
+        delta = batch_mean - self.mean
+        m2 = self.var * seen + batch_var * n + delta.square() * (seen * n / total)
+        self.mean += delta * (n / total)
+        self.var.copy_(m2 / total)
+        self.count.fill_(total)
+        self.pending_n = 0
+        self.pending_sum.zero_()
+        self.pending_sq.zero_()
+
+
 class Model(nn.Module):
-    """Token → LayerNorm → Linear → GTrXL → Gaussian policy head and Pop-Art value head."""
+    """Token → [ObsNorm] → LayerNorm → Linear → GTrXL → Gaussian policy and Pop-Art value."""
 
     def __init__(self, mc: Config, popart: Config) -> None:
         super().__init__()
@@ -228,6 +277,7 @@ class Model(nn.Module):
         self.action_dim = mc["action_dim"]
         self.min_std = mc["min_std"]
         max_distance = mc["memory_len"] + mc["segment_len"]
+        self.obs_norm = ObsNorm(mc) if mc.get("obs_norm") else None
         self.input_norm = nn.LayerNorm(obs)
         self.input_proj = nn.Linear(obs, d)
         self.layers = nn.ModuleList(
@@ -272,6 +322,9 @@ class Model(nn.Module):
             "popart.sigma": self.popart.sigma,
             "popart.updates": self.popart.updates,
         }
+        if self.obs_norm is not None:
+            on = self.obs_norm
+            names |= {"obs_norm.mean": on.mean, "obs_norm.var": on.var, "obs_norm.count": on.count}
         for i, layer in enumerate(self.layers):
             assert isinstance(layer, GtrxlLayer)
             p = f"core.layer{i}"
@@ -306,6 +359,8 @@ class Model(nn.Module):
         max_distance = self.layers[0].rel_bias.shape[1]
         distance = (steps.unsqueeze(1) - keys.unsqueeze(0)).clamp(0, max_distance - 1)
 
+        if self.obs_norm is not None:
+            obs = self.obs_norm(obs)
         x = self.input_proj(self.input_norm(obs))
         for layer, mem in zip(self.layers, memory.unbind(0), strict=True):
             x = layer(x, mem, mask, distance)
@@ -371,10 +426,10 @@ class Multipliers(nn.Module):
         return raw.exp() if self.log_form else raw
 
     @torch.no_grad()
-    def project(self, floor: float) -> None:
-        if not self.log_form:
-            for p in self.parameters():
-                p.clamp_min_(floor)
+    def project(self, floor: float, ceiling: float) -> None:
+        low, high = (math.log(floor), math.log(ceiling)) if self.log_form else (floor, ceiling)
+        for p in self.parameters():
+            p.clamp_(low, high)
 
 
 @dataclass
@@ -609,9 +664,15 @@ class Learner:
             self.model.popart.restore(t["popart_before"])
             raise FloatingPointError(f"non-finite gradient (loss {loss_value})")
         self.adam.step()
-        self.multipliers.project(self.cfg["vmpo"]["min_multiplier"])
+        v = self.cfg["vmpo"]
+        self.multipliers.project(v["min_multiplier"], v["max_multiplier"])
+        sync = (self.updates + 1) % self.cfg["buffer"]["target_period"] == 0
+        if self.model.obs_norm is not None:
+            self.model.obs_norm.observe(b.obs)
+            if sync:
+                self.model.obs_norm.commit()
         self.updates += 1
-        if self.updates % self.cfg["buffer"]["target_period"] == 0:
+        if sync:
             self.sync_target()
         return self.metrics(t, loss_value)
 

@@ -69,6 +69,10 @@ pub struct ModelConfig {
     pub value_hidden: usize,
     /// Floor added to the softplus standard deviation [S].
     pub min_std: f64,
+    /// Observation fields (keys of `observation`) whose features are normalised by their
+    /// running mean and variance before the token's LayerNorm (not in the paper; empty = the
+    /// paper). See `model::obs_norm` and LEARNING.md.
+    pub obs_norm: Vec<String>,
 }
 
 impl Default for ModelConfig {
@@ -104,6 +108,7 @@ impl Default for ModelConfig {
             policy_hidden: 256,
             value_hidden: 256,
             min_std: 1e-4,
+            obs_norm: vec![],
         }
     }
 }
@@ -112,6 +117,14 @@ impl ModelConfig {
     /// Length of the concatenated observation token.
     pub fn obs_dim(&self) -> usize {
         self.observation.iter().map(|f| f.size).sum()
+    }
+
+    /// Per token feature: whether `obs_norm` normalises it.
+    pub fn obs_norm_mask(&self) -> Vec<bool> {
+        self.observation
+            .iter()
+            .flat_map(|f| std::iter::repeat_n(self.obs_norm.contains(&f.key), f.size))
+            .collect()
     }
 }
 
@@ -159,6 +172,10 @@ pub struct VmpoConfig {
     pub init_alpha_sigma: f64,
     /// Multipliers are projected back to at least this value after every step.
     pub min_multiplier: f64,
+    /// ... and to at most this one (not in the paper; the default never binds there). In log
+    /// form a violated bound grows a multiplier by a factor every update: without a ceiling
+    /// α_Σ reached 1e23, after which its KL term outweighs every other loss (LEARNING.md).
+    pub max_multiplier: f64,
     /// Normalised advantages are clipped to ±this.
     pub advantage_clip: f64,
     /// Fraction of valid steps kept for the policy loss (V-MPO: the top half).
@@ -213,6 +230,7 @@ impl Default for VmpoConfig {
             init_alpha_mu: 1.0,
             init_alpha_sigma: 1.0,
             min_multiplier: 1e-8,
+            max_multiplier: 1e30,
             advantage_clip: 40.0,
             top_fraction: 0.5,
             multiplier_form: MultiplierForm::Clamp,
@@ -374,6 +392,15 @@ impl AgentConfig {
         if m.min_std <= 0.0 {
             return bad("model.min_std must be > 0".into());
         }
+        if let Some(key) = m
+            .obs_norm
+            .iter()
+            .find(|k| !m.observation.iter().any(|f| &f.key == *k))
+        {
+            return bad(format!(
+                "model.obs_norm names `{key}`, which is not a field of model.observation"
+            ));
+        }
         let p = &self.popart;
         if p.beta <= 0.0 || p.beta > 1.0 || p.sigma_min <= 0.0 || p.sigma_min >= p.sigma_max {
             return bad("popart: need 0 < beta <= 1 and 0 < sigma_min < sigma_max".into());
@@ -389,11 +416,18 @@ impl AgentConfig {
             return bad("vmpo.top_fraction must be in (0, 1]".into());
         }
         if v.min_multiplier <= 0.0
+            || v.max_multiplier < v.min_multiplier
+            || [v.init_eta, v.init_alpha_mu, v.init_alpha_sigma]
+                .iter()
+                .any(|&init| init > v.max_multiplier)
             || v.init_eta < v.min_multiplier
             || v.init_alpha_mu < v.min_multiplier
             || v.init_alpha_sigma < v.min_multiplier
         {
-            return bad("vmpo: multipliers and min_multiplier must be positive".into());
+            return bad(
+                "vmpo: need 0 < min_multiplier <= every initial multiplier <= max_multiplier"
+                    .into(),
+            );
         }
         if v.advantage_clip <= 0.0 {
             return bad("vmpo.advantage_clip must be > 0".into());

@@ -15,8 +15,9 @@ use crate::model::popart::{PopArtState, PopArtSummary};
 use crate::optim::Adam;
 
 /// The Lagrange multipliers η, α_μ, α_Σ as trainable scalars. In clamp form the variables are
-/// the multipliers, projected back to at least `vmpo.min_multiplier` after every step; in log
-/// form they are the logarithms, so the multipliers are positive by construction.
+/// the multipliers; in log form they are the logarithms, so the multipliers are positive by
+/// construction. Either way they are projected into [`vmpo.min_multiplier`,
+/// `vmpo.max_multiplier`] after every step.
 #[derive(Debug)]
 pub struct Multipliers {
     form: MultiplierForm,
@@ -63,15 +64,17 @@ impl Multipliers {
         self.value(&self.raw_alpha_sigma)
     }
 
-    /// Keeps clamp-form multipliers at least `floor` after a step (log form needs nothing).
-    fn project(&self, floor: f64) {
-        if self.form == MultiplierForm::Clamp {
-            tch::no_grad(|| {
-                for t in [&self.raw_eta, &self.raw_alpha_mu, &self.raw_alpha_sigma] {
-                    let _ = t.shallow_clone().clamp_min_(floor);
-                }
-            });
-        }
+    /// Keeps the multipliers within [floor, ceiling] after a step.
+    fn project(&self, floor: f64, ceiling: f64) {
+        let (low, high) = match self.form {
+            MultiplierForm::Clamp => (floor, ceiling),
+            MultiplierForm::Log => (floor.ln(), ceiling.ln()),
+        };
+        tch::no_grad(|| {
+            for t in [&self.raw_eta, &self.raw_alpha_mu, &self.raw_alpha_sigma] {
+                let _ = t.shallow_clone().clamp_(low, high);
+            }
+        });
     }
 }
 
@@ -264,12 +267,19 @@ impl Learner {
             return Err(LearnerError::NonFiniteGradient(loss_value));
         }
         self.adam.step();
-        self.multipliers.project(self.cfg.vmpo.min_multiplier);
+        let v = &self.cfg.vmpo;
+        self.multipliers.project(v.min_multiplier, v.max_multiplier);
+        // 8. Normalised observations: the batch joins the pending moments, which the
+        // statistics take in when the target is synced (model::obs_norm says why).
+        let sync = (self.updates + 1).is_multiple_of(self.cfg.buffer.target_period as u64);
+        if let Some(norm) = self.model.obs_norm_mut() {
+            norm.observe(&batch.obs);
+            if sync {
+                norm.commit();
+            }
+        }
         self.updates += 1;
-        if self
-            .updates
-            .is_multiple_of(self.cfg.buffer.target_period as u64)
-        {
+        if sync {
             self.sync_target();
         }
         Ok(self.metrics(&l, loss_value))

@@ -22,7 +22,7 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// Quickstart with λ-returns, debiased Pop-Art over 3 tasks, log-form multipliers with their
+/// Quickstart with the state field normalised, λ-returns, debiased Pop-Art over 3 tasks, log-form multipliers with their
 /// own step size and a target network synced after every update.
 fn variant_config(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(repo().join("configs/quickstart.toml")).unwrap();
@@ -34,6 +34,11 @@ fn variant_config(dir: &Path) -> PathBuf {
             .insert(key.into(), value);
     };
     set("model", "num_tasks", 3.into());
+    set(
+        "model",
+        "obs_norm",
+        toml::Value::Array(vec!["state".into()]),
+    );
     set("popart", "debias", true.into());
     set("vmpo", "lambda", 0.9.into());
     set("vmpo", "multiplier_form", "log".into());

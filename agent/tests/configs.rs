@@ -92,4 +92,9 @@ fn a_bad_config_is_a_clear_error() {
         .unwrap_err()
         .to_string();
     assert!(err.contains("missing.toml"), "{err}");
+
+    // obs_norm may only name fields of the observation token.
+    std::fs::write(&path, "[model]\nobs_norm = [\"sate\"]\n").unwrap();
+    let err = RunConfig::from_file(&path).unwrap_err().to_string();
+    assert!(err.contains("obs_norm") && err.contains("sate"), "{err}");
 }

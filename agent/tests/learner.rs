@@ -105,6 +105,27 @@ fn multipliers_stay_positive_under_a_huge_learning_rate() {
 }
 
 #[test]
+fn a_violated_bound_grows_its_multiplier_only_up_to_the_ceiling() {
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.optim.lr = 0.05;
+    cfg.vmpo.multiplier_form = MultiplierForm::Log;
+    cfg.vmpo.multiplier_lr = Some(0.5);
+    cfg.vmpo.eps_alpha_mu = 1e-12;
+    cfg.vmpo.max_multiplier = 2.0;
+    // KL from a target that is never synced: the policy drifts away from it, so C_μ > ε_αμ
+    // on every update and log α_μ climbs by about 0.5 per update (e^3 > 2 after 6).
+    cfg.vmpo.kl_reference = KlReference::Target;
+    cfg.buffer.target_period = 1000;
+    let mut l = learner(cfg, 4);
+    for _ in 0..6 {
+        let batch = bandit_batch(&l, 4);
+        l.update(&batch).unwrap();
+    }
+    let alpha_mu = l.multipliers().alpha_mu().double_value(&[]);
+    assert!((alpha_mu - 2.0).abs() < 1e-5, "α_μ = {alpha_mu}");
+}
+
+#[test]
 fn log_form_multipliers_move_by_factors_with_their_own_step_size() {
     let mut cfg = small_agent(8, 8, 4);
     cfg.vmpo.multiplier_form = MultiplierForm::Log;
@@ -326,5 +347,51 @@ fn an_actor_store_receives_the_learner_weights() {
     assert!(
         sigma.equal(l.model().popart().sigma()),
         "Pop-Art statistics travel too"
+    );
+}
+
+#[test]
+fn normalised_observations_change_at_target_syncs_and_travel_to_actors() {
+    use million::model::Model;
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.model.obs_norm = cfg
+        .model
+        .observation
+        .iter()
+        .map(|f| f.key.clone())
+        .collect();
+    cfg.buffer.target_period = 2;
+    cfg.vmpo.kl_reference = KlReference::Target;
+    let mut l = learner(cfg.clone(), 7);
+    let batch = bandit_batch(&l, 4);
+    let mean_of = |vs: &tch::nn::VarStore, name: &str| vs.variables()[name].shallow_clone();
+    let untouched = |l: &Learner| {
+        let mean = mean_of(l.var_store(), "obs_norm.mean");
+        mean.abs().sum(Kind::Double).double_value(&[]) == 0.0
+    };
+    // Neither loss_terms nor the first update moves the statistics; the second update syncs
+    // the target and commits both batches (obs = 1..=D on every step: mean 1..=D, variance 0).
+    l.loss_terms(&batch).unwrap();
+    l.update(&batch).unwrap();
+    assert!(untouched(&l), "pending until the target sync");
+    l.update(&batch).unwrap();
+    let mean = mean_of(l.var_store(), "obs_norm.mean");
+    let var = mean_of(l.var_store(), "obs_norm.var");
+    let d = cfg.model.obs_dim() as i64;
+    let expected = Tensor::arange_start(1, d + 1, (Kind::Double, Device::Cpu));
+    assert!(mean.allclose(&expected, 1e-9, 1e-9, false), "{mean}");
+    assert!(var.abs().max().double_value(&[]) < 1e-9, "{var}");
+    let target_mean = mean_of(l.var_store(), "target.obs_norm.mean");
+    assert!(
+        target_mean.equal(&mean),
+        "the target takes the new statistics at the sync"
+    );
+
+    let mut actor_vs = tch::nn::VarStore::new(Device::Cpu);
+    let _actor = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
+    l.copy_weights_to(&mut actor_vs).unwrap();
+    assert!(
+        mean_of(&actor_vs, "obs_norm.mean").equal(&mean),
+        "the statistics travel"
     );
 }

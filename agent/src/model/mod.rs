@@ -1,8 +1,9 @@
-//! The MILLION network: observation token → LayerNorm → Linear → GTrXL → policy head and
+//! The MILLION network: observation token → [running normalisation] → LayerNorm → Linear → GTrXL → policy head and
 //! Pop-Art value head (ALGORITHM.md §2).
 
 pub mod acting;
 pub mod gtrxl;
+pub mod obs_norm;
 pub mod observation;
 pub mod policy;
 pub mod popart;
@@ -12,6 +13,7 @@ use tch::{Device, Tensor};
 
 use crate::config::{ModelConfig, PopArtConfig};
 use gtrxl::Gtrxl;
+use obs_norm::ObsNorm;
 use policy::PolicyHead;
 use popart::PopArt;
 
@@ -20,6 +22,8 @@ use popart::PopArt;
 #[derive(Debug)]
 pub struct Model {
     cfg: ModelConfig,
+    /// Running normalisation of the chosen token fields (`model.obs_norm`; None = the paper).
+    obs_norm: Option<ObsNorm>,
     input_norm: LayerNorm,
     input_proj: Linear,
     core: Gtrxl,
@@ -47,6 +51,8 @@ impl Model {
         let d = cfg.d_model as i64;
         let obs = cfg.obs_dim() as i64;
         Self {
+            obs_norm: (!cfg.obs_norm.is_empty())
+                .then(|| ObsNorm::new(p / "obs_norm", &cfg.obs_norm_mask())),
             input_norm: nn::layer_norm(p / "input_norm", vec![obs], Default::default()),
             input_proj: nn::linear(p / "input_proj", obs, d, Default::default()),
             core: Gtrxl::new(p / "core", cfg),
@@ -94,9 +100,17 @@ impl Model {
         &mut self.popart
     }
 
+    pub fn obs_norm_mut(&mut self) -> Option<&mut ObsNorm> {
+        self.obs_norm.as_mut()
+    }
+
     /// Token `[..., obs]` → model input `[..., d]`.
     pub fn embed(&self, obs: &Tensor) -> Tensor {
-        self.input_proj.forward(&self.input_norm.forward(obs))
+        let token = match &self.obs_norm {
+            Some(norm) => self.input_norm.forward(&norm.forward(obs)),
+            None => self.input_norm.forward(obs),
+        };
+        self.input_proj.forward(&token)
     }
 
     pub fn policy(&self, core: &Tensor) -> (Tensor, Tensor) {
