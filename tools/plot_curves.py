@@ -43,6 +43,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--wall", action="store_true", help="x = wall-clock minutes")
     p.add_argument("--title", default="")
+    p.add_argument("--log-key", action="append", default=[], help="panel with a log y axis")
     args = p.parse_args()
     runs = []
     for spec in args.runs:
@@ -55,12 +56,15 @@ def main() -> None:
         for name, path in runs:
             xs, ys = read_series(path, key, args.wall)
             if xs:
-                ax.plot(xs, ys, marker="o", markersize=3, label=name)
+                dense = len(xs) > 40  # per-log-interval series: a line, no markers
+                ax.plot(xs, ys, marker="" if dense else "o", markersize=3, label=name)
         ax.set_title(key, fontsize=9)
         ax.set_xlabel("wall-clock minutes" if args.wall else "agent steps (millions)")
         ax.set_ylabel("success rate" if "success" in key else key)
         if "success" in key:
             ax.set_ylim(-0.02, 1.02)
+        if key in args.log_key:
+            ax.set_yscale("log")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
     if args.title:
