@@ -1,5 +1,5 @@
-//! The MILLION network: observation token → [running normalisation] → LayerNorm → Linear → GTrXL → policy head and
-//! Pop-Art value head (ALGORITHM.md §2).
+//! The MILLION network: observation token → [running normalisation, `model.obs_norm`] →
+//! LayerNorm → Linear → GTrXL → policy head and Pop-Art value head (ALGORITHM.md §2).
 
 pub mod acting;
 pub mod gtrxl;
