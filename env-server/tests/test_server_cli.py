@@ -49,6 +49,11 @@ def test_preloaded_server_serves_the_benchmark() -> None:
                 timeout=30,
             )
             assert made.spec.observation_space.box.shape == [39]
+            stub.Reset(env_pb2.ResetRequest(handle=made.handle, seeds=[0]), timeout=60)
+            counters = stub.GetStats(env_pb2.GetStatsRequest(), timeout=10).counters
+            # The reset built the slot's reach-v3 env; nothing has been given back yet.
+            assert counters["metaworld_envs_built"] == 1.0
+            assert counters["metaworld_envs_idle"] == 0.0
     finally:
         stop_server(process)
 

@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from million_env import logs
+from million_env.allocator import fix_mmap_threshold
 from million_env.metaworld_tasks import (
     ALL_TASK_NAMES,
     BENCHMARKS,
@@ -121,6 +122,7 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     logs.configure(args.log_level, args.log_format)
     BUILT_ENVS.max_idle = args.idle_envs
+    fix_mmap_threshold()
     from million_env.server import serve
 
     tls = None

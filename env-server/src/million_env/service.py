@@ -385,6 +385,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     async def GetStats(
         self, request: env_pb2.GetStatsRequest, context: grpc.aio.ServicerContext
     ) -> env_pb2.GetStatsResponse:
+        from million_env.metaworld_tasks import BUILT_ENVS
         from million_env.million import protocol_stats
 
         counters: dict[str, Any] = {
@@ -395,4 +396,5 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         }
         counters.update(self.stats.counters())
         counters.update(protocol_stats())
+        counters.update(BUILT_ENVS.counters())
         return env_pb2.GetStatsResponse(counters=counters)
