@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import queue
 import time
 
 import grpc
@@ -85,8 +86,12 @@ def test_limits_are_enforced_by_the_running_server() -> None:
         stop_server(process)
 
 
+MAKE_PENDULUM = env_pb2.MakeRequest(env_id="Pendulum-v1", num_envs=1)
+
+
 def test_idle_handles_are_closed_and_busy_ones_kept() -> None:
-    """A client that dies without Close must not hold its envs for ever."""
+    """A client that dies without Close must not hold its envs for ever; handles a Session
+    stream made end with the stream, however long they wait (an agent's evaluation envs)."""
     assert parse_args([]).handle_idle_timeout > 0
     with pytest.raises(SystemExit):
         parse_args(["--handle-idle-timeout", "-1"])
@@ -96,19 +101,30 @@ def test_idle_handles_are_closed_and_busy_ones_kept() -> None:
             stub = env_pb2_grpc.EnvServiceStub(channel)
 
             def make() -> str:
-                handle = stub.Make(
-                    env_pb2.MakeRequest(env_id="Pendulum-v1", num_envs=1), timeout=30
-                ).handle
+                handle = stub.Make(MAKE_PENDULUM, timeout=30).handle
                 stub.Reset(env_pb2.ResetRequest(handle=handle), timeout=30)
                 return handle
 
             abandoned, busy = make(), make()
+            requests: queue.Queue = queue.Queue()
+            stream = stub.Session(iter(requests.get, None), timeout=60)
+            requests.put(env_pb2.SessionRequest(request_id=1, make=MAKE_PENDULUM))
+            waiting = next(stream).make.handle
+            requests.put(
+                env_pb2.SessionRequest(request_id=2, reset=env_pb2.ResetRequest(handle=waiting))
+            )
+            assert not next(stream).HasField("error")
             action = encode_tensor(np.zeros((1, 1), dtype=np.float32))
             for _ in range(8):  # 2.4 s of calls on `busy` only
                 stub.Step(env_pb2.StepRequest(handle=busy, action=action), timeout=30)
                 time.sleep(0.3)
 
             stub.Step(env_pb2.StepRequest(handle=busy, action=action), timeout=30)
+            step = env_pb2.StepRequest(handle=waiting, action=action)
+            requests.put(env_pb2.SessionRequest(request_id=3, step=step))
+            assert not next(stream).HasField("error")  # the stream's handle outlived the wait
+            requests.put(None)
+            assert list(stream) == []
             with pytest.raises(grpc.RpcError) as err:
                 stub.Step(env_pb2.StepRequest(handle=abandoned, action=action), timeout=30)
             assert err.value.code() == grpc.StatusCode.NOT_FOUND

@@ -59,6 +59,9 @@ class _Handle:
     batch: EnvBatch
     lock: asyncio.Lock = field(default_factory=asyncio.Lock)
     last_used: float = field(default_factory=time.monotonic)
+    # Made on a Session stream: closed when that stream ends, never for being idle (a
+    # training run's evaluation envs wait between evaluations for longer than the timeout).
+    stream_owned: bool = False
 
 
 def _status_number(code: grpc.StatusCode) -> int:
@@ -197,7 +200,8 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         self._envs_reserved -= handle.batch.num_envs
 
     async def close_idle(self) -> int:
-        """Closes the handles unused for longer than the idle timeout; returns how many."""
+        """Closes the handles made by unary Make and unused for longer than the idle
+        timeout; returns how many. Stream-owned handles end with their stream."""
         timeout = self._limits.handle_idle_timeout_s
         if timeout <= 0:
             return 0
@@ -205,7 +209,9 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         idle = [
             name
             for name, handle in self._handles.items()
-            if now - handle.last_used > timeout and not handle.lock.locked()
+            if now - handle.last_used > timeout
+            and not handle.lock.locked()
+            and not handle.stream_owned
         ]
         for name in idle:
             _LOG.warning(
@@ -348,6 +354,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             elif kind == "make":
                 made = await self._make(request.make)
                 owned.add(made.handle)
+                self._handles[made.handle].stream_owned = True
                 reply.make.CopyFrom(made)
             elif kind == "close":
                 await self._close(request.close.handle)
