@@ -106,11 +106,15 @@ impl Model {
 
     /// Token `[..., obs]` → model input `[..., d]`.
     pub fn embed(&self, obs: &Tensor) -> Tensor {
-        let token = match &self.obs_norm {
-            Some(norm) => self.input_norm.forward(&norm.forward(obs)),
-            None => self.input_norm.forward(obs),
+        let normalised;
+        let obs = match &self.obs_norm {
+            Some(norm) => {
+                normalised = norm.forward(obs);
+                &normalised
+            }
+            None => obs,
         };
-        self.input_proj.forward(&token)
+        self.input_proj.forward(&self.input_norm.forward(obs))
     }
 
     pub fn policy(&self, core: &Tensor) -> (Tensor, Tensor) {
