@@ -28,7 +28,8 @@ def run(env_id: str, kwargs: dict, episodes_per_task: int, seed: int) -> dict:
     trials: dict[str, list[bool]] = defaultdict(list)
     first: dict[str, list[bool]] = defaultdict(list)
     for episode in range(episodes_per_task * num_tasks):
-        # Seeds s, s + 1, ... start the cycle at task s mod n, then one task per episode.
+        # Seeding the first reset with s starts the cycle at task s mod n; each later
+        # reset takes the next task, so every task gets the same number of episodes.
         _, info = env.reset(seed=seed + episode) if episode == 0 else env.reset()
         task = info["task_name"]
         outcomes: list[bool] = []

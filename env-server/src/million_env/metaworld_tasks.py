@@ -127,9 +127,10 @@ class BuiltEnvs:
 
     def counters(self) -> dict[str, float]:
         """GetStats counters: envs built since the start, and envs idle now."""
-        with self._lock:
-            idle = sum(len(envs) for envs in self._idle.values())
-            return {"metaworld_envs_built": float(self.builds), "metaworld_envs_idle": float(idle)}
+        return {
+            "metaworld_envs_built": float(self.builds),
+            "metaworld_envs_idle": float(self.idle()),
+        }
 
     def take(self, key: tuple[Any, ...], build: Callable[[], Any]) -> Any:
         """An idle env of `key`, else a new one from `build()` (built outside the lock)."""

@@ -124,7 +124,9 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
 
     # -- operations shared by the unary calls and the stream -------------------
 
-    async def _make(self, request: env_pb2.MakeRequest) -> env_pb2.MakeResponse:
+    async def _make(
+        self, request: env_pb2.MakeRequest, stream_owned: bool = False
+    ) -> env_pb2.MakeResponse:
         num_envs = request.num_envs
         if num_envs < 1:
             raise invalid("num_envs must be at least 1")
@@ -150,7 +152,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             self._envs_reserved -= num_envs
             raise
         name = secrets.token_urlsafe(24)
-        self._handles[name] = _Handle(batch)
+        self._handles[name] = _Handle(batch, stream_owned=stream_owned)
         _LOG.info(
             "made %s x%d as %s…",
             request.env_id,
@@ -352,9 +354,8 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
             elif kind == "step":
                 reply.step.CopyFrom(await self._step(request.step))
             elif kind == "make":
-                made = await self._make(request.make)
+                made = await self._make(request.make, stream_owned=True)
                 owned.add(made.handle)
-                self._handles[made.handle].stream_owned = True
                 reply.make.CopyFrom(made)
             elif kind == "close":
                 await self._close(request.close.handle)
