@@ -221,6 +221,11 @@ impl LocalServer {
         command
             .args(&self.options.extra_args)
             .envs(self.options.env.iter().map(|(k, v)| (k, v)));
+        // Its own process group: a Ctrl-C in the agent's terminal (SIGINT to the foreground
+        // group) goes to the agent alone, which then evaluates, checkpoints and ends its
+        // servers itself; in the agent's group the servers died first and the run's final
+        // evaluation lost them (seen on a GPU machine: `timeout -s INT` signals the group).
+        command.process_group(0);
         die_with_parent(&mut command);
         let mut child = command.spawn().map_err(|source| LocalServerError::Spawn {
             binary: self.binary.clone(),

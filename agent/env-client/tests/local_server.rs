@@ -37,6 +37,22 @@ async fn starts_servers_on_distinct_ports_and_kills_them() {
     );
 }
 
+#[cfg(target_os = "linux")]
+#[tokio::test]
+async fn a_server_leads_its_own_process_group() {
+    // A Ctrl-C in the agent's terminal signals the agent's process group; the servers must
+    // not be in it, or they die before the agent's final evaluation and checkpoint.
+    let binary = default_server_binary().expect("make setup installed the server");
+    let server = LocalServer::start(&binary, LocalServerOptions::default())
+        .await
+        .expect("server starts");
+    let pid = server.pid().expect("a running server has a pid") as libc::pid_t;
+    // SAFETY: getpgid only reads the process table.
+    let (group, ours) = unsafe { (libc::getpgid(pid), libc::getpgid(0)) };
+    assert_eq!(group, pid, "the server leads its own group");
+    assert_ne!(group, ours, "the server is outside the agent's group");
+}
+
 #[tokio::test]
 async fn a_missing_binary_is_a_clear_error() {
     let missing = std::path::Path::new("/nonexistent/million-env-server");

@@ -151,3 +151,23 @@ async fn next_step_mode_shows_the_cut_then_the_reset() {
     );
     pool.close().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn closing_after_a_restart_is_no_error() {
+    // The restarted server no longer knows the pool's handle (NOT_FOUND): its envs are gone
+    // already, which is what Close asks for. A run that lost a server while stopping used
+    // to fail here before writing its final checkpoint.
+    init_tracing();
+    let mut server = common::start_server().await;
+    let mut pool = EnvPool::connect(patient_config(
+        vec![server.addr().to_owned()],
+        AutoresetMode::SameStep,
+    ))
+    .await
+    .unwrap();
+    pool.reset_all().await.unwrap();
+    server.restart().await.expect("server restarts");
+    pool.close()
+        .await
+        .expect("a handle the server forgot is closed");
+}

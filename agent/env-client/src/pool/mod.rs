@@ -574,13 +574,22 @@ impl EnvPool {
         }
     }
 
-    /// Closes every handle; the first failure is returned after trying all.
+    /// Closes every handle; the first failure is returned after trying all. A handle the
+    /// server no longer knows (NOT_FOUND: the server restarted, or its envs already ended)
+    /// is closed already, so it is no failure: a run that lost a server while it stopped
+    /// must still write its final checkpoint.
     pub async fn close(mut self) -> Result<()> {
         let mut first_err = None;
         for group in std::mem::take(&mut self.groups) {
             for shard in group.shards {
-                if let Err(e) = shard.client().close(shard.handle()).await {
-                    first_err.get_or_insert(e);
+                match shard.client().close(shard.handle()).await {
+                    Err(e) if e.code() == Some(tonic::Code::NotFound) => {
+                        tracing::debug!(handle = shard.handle(), "closing: already gone");
+                    }
+                    Err(e) => {
+                        first_err.get_or_insert(e);
+                    }
+                    Ok(()) => {}
                 }
             }
         }
