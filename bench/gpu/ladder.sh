@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Ladder rung 2 on one GPU machine: ML1 reach with and without instructions, two seeds each,
+# four runs side by side (2 env servers each; learners and actors share the GPU), stopped
+# after SECONDS with SIGINT so that each ends with its final evaluation and checkpoint (only
+# the agent gets the signal: it ends its env servers itself).
+#   bash bench/gpu/ladder.sh [OUT_DIR] [SECONDS]   # OUT_DIR/<arm>-seed<N>.jsonl: metrics
+# Curves: tools/plot_curves.py on the metrics files (LEARNING.md).
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out="${1:-runs/gpu-ladder}"
+seconds="${2:-480}"
+mkdir -p "$out"
+. bench/gpu/env.sh >"$out/setup.log" 2>&1
+pids=()
+for arm in 2-ml1-reach 2-ml1-reach-no-instructions; do
+  for seed in 1 2; do
+    run="runs/gpu-$arm-seed$seed"
+    rm -rf "$run"
+    timeout --foreground -s INT -k 60 "$seconds" "$bin" train --config "configs/gpu/$arm.toml" \
+      --seed "$seed" --run-dir "$run" >"$out/$arm-seed$seed.log" 2>&1 &
+    pids+=($!)
+  done
+done
+status=0
+# timeout's 124 is the planned stop; anything else is a failure.
+for pid in "${pids[@]}"; do wait "$pid" || { rc=$?; [ "$rc" -eq 124 ] || status=$rc; }; done
+for arm in 2-ml1-reach 2-ml1-reach-no-instructions; do
+  for seed in 1 2; do
+    cp "runs/gpu-$arm-seed$seed/metrics.jsonl" "$out/$arm-seed$seed.jsonl" || status=1
+  done
+done
+tar -czf "$out/logs.tar.gz" -C "$out" --remove-files $(cd "$out" && ls -- *.log)
+exit "$status"

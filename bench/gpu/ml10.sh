@@ -1,0 +1,17 @@
+#!/usr/bin/env bash
+# Ladder rung 4 (ML10) on one GPU machine for SECONDS, then SIGINT (final evaluation and
+# checkpoint). Only the agent gets the signal; it ends its env servers itself.
+#   bash bench/gpu/ml10.sh [OUT_DIR] [SECONDS]   # OUT_DIR/4-ml10.jsonl: metrics
+set -euo pipefail
+cd "$(dirname "$0")/../.."
+out="${1:-runs/gpu-ml10}"
+seconds="${2:-480}"
+mkdir -p "$out"
+. bench/gpu/env.sh >"$out/setup.log" 2>&1
+run=runs/gpu-4-ml10
+rm -rf "$run"
+status=0
+timeout --foreground -s INT -k 90 "$seconds" "$bin" train --config configs/gpu/4-ml10.toml \
+  --run-dir "$run" >"$out/4-ml10.log" 2>&1 || { rc=$?; [ "$rc" -eq 124 ] || status=$rc; }
+cp "$run/metrics.jsonl" "$out/4-ml10.jsonl"
+exit "$status"
