@@ -261,12 +261,11 @@ impl Learner {
         }
         self.adam.zero_grad();
         l.loss.backward();
-        if !self.adam.gradients_finite() {
+        if !self.adam.step_if_finite() {
             self.adam.zero_grad();
             self.model.popart_mut().restore(&l.popart_before);
             return Err(LearnerError::NonFiniteGradient(loss_value));
         }
-        self.adam.step();
         let v = &self.cfg.vmpo;
         self.multipliers.project(v.min_multiplier, v.max_multiplier);
         // 8. Normalised observations: the batch joins the pending moments, which the

@@ -20,14 +20,21 @@ pub enum OptimStateError {
     },
 }
 
+/// Adam with its moments and step sizes in flat buffers, one element per variable element:
+/// an update is a dozen whole-buffer kernels plus one `sub_` per variable, where a loop over
+/// the variables launched a dozen per variable (on a GPU, launch-bound at these sizes, the
+/// loop made the update ~1.3x slower than PyTorch's fused Adam; BENCHMARKS.md, "GPU").
+/// The arithmetic is the same as the loop's and PyTorch's.
 #[derive(Debug)]
 pub struct Adam {
     cfg: OptimConfig,
     params: Vec<(String, Tensor)>,
-    /// Step size of each parameter (`cfg.lr` unless overridden by prefix).
-    lrs: Vec<f64>,
-    m: Vec<Tensor>,
-    v: Vec<Tensor>,
+    /// (offset, length) of each variable in the flat buffers.
+    spans: Vec<(i64, i64)>,
+    /// Step size of each element (`cfg.lr` unless overridden by prefix).
+    lr: Tensor,
+    m: Tensor,
+    v: Tensor,
     step: i64,
 }
 
@@ -40,37 +47,37 @@ impl Adam {
             .filter(|(_, t)| t.requires_grad())
             .collect();
         params.sort_by(|a, b| a.0.cmp(&b.0));
-        let m = params.iter().map(|(_, p)| p.zeros_like()).collect();
-        let v = params.iter().map(|(_, p)| p.zeros_like()).collect();
-        let lrs = vec![cfg.lr; params.len()];
+        let mut spans = Vec::with_capacity(params.len());
+        let mut total = 0i64;
+        for (_, p) in &params {
+            let n = p.numel() as i64;
+            spans.push((total, n));
+            total += n;
+        }
+        let (kind, device) = params
+            .first()
+            .map_or((tch::Kind::Float, vs.device()), |(_, p)| {
+                (p.kind(), p.device())
+            });
+        let zeros = || Tensor::zeros([total], (kind, device));
         Self {
+            lr: Tensor::full([total], cfg.lr, (kind, device)),
             cfg,
             params,
-            lrs,
-            m,
-            v,
+            spans,
+            m: zeros(),
+            v: zeros(),
             step: 0,
         }
     }
 
     /// Gives every variable whose name starts with `prefix` its own step size.
     pub fn set_lr_for_prefix(&mut self, prefix: &str, lr: f64) {
-        for ((name, _), l) in self.params.iter().zip(self.lrs.iter_mut()) {
+        for ((name, _), &(offset, len)) in self.params.iter().zip(&self.spans) {
             if name.starts_with(prefix) {
-                *l = lr;
+                let _ = self.lr.narrow(0, offset, len).fill_(lr);
             }
         }
-    }
-
-    /// True when every gradient present is finite (an update with a NaN or infinite gradient
-    /// must not be applied).
-    pub fn gradients_finite(&self) -> bool {
-        tch::no_grad(|| {
-            self.params.iter().all(|(_, p)| {
-                let g = p.grad();
-                !g.defined() || g.isfinite().all().int64_value(&[]) == 1
-            })
-        })
     }
 
     pub fn steps(&self) -> i64 {
@@ -83,41 +90,97 @@ impl Adam {
         }
     }
 
-    pub fn step(&mut self) {
+    /// One Adam step, unless a gradient is NaN or infinite (then nothing changes and it
+    /// returns false). One device-to-host read decides, not one per variable.
+    pub fn step_if_finite(&mut self) -> bool {
+        if self.params.is_empty() {
+            return true;
+        }
+        tch::no_grad(|| {
+            let grads: Vec<Tensor> = self.params.iter().map(|(_, p)| p.grad()).collect();
+            if grads.iter().all(Tensor::defined) {
+                let flat: Vec<Tensor> = grads.iter().map(|g| g.reshape([-1])).collect();
+                let g = Tensor::cat(&flat, 0);
+                if g.isfinite().all().int64_value(&[]) == 0 {
+                    return false;
+                }
+                self.apply(&g);
+            } else {
+                // A variable outside the loss (none in the agent today): step the others.
+                let finite = grads
+                    .iter()
+                    .filter(|g| g.defined())
+                    .all(|g| g.isfinite().all().int64_value(&[]) == 1);
+                if !finite {
+                    return false;
+                }
+                self.apply_each(&grads);
+            }
+            true
+        })
+    }
+
+    fn bias_corrections(&mut self) -> (f64, f64) {
+        self.step += 1;
+        let OptimConfig { beta1, beta2, .. } = self.cfg;
+        (
+            1.0 - beta1.powi(self.step as i32),
+            1.0 - beta2.powi(self.step as i32),
+        )
+    }
+
+    /// The step on the flat gradient of every variable.
+    fn apply(&mut self, g: &Tensor) {
         let OptimConfig {
             beta1, beta2, eps, ..
         } = self.cfg;
-        self.step += 1;
-        let bc1 = 1.0 - beta1.powi(self.step as i32);
-        let bc2 = 1.0 - beta2.powi(self.step as i32);
-        tch::no_grad(|| {
-            for (((_, p), lr), (m, v)) in self
-                .params
-                .iter_mut()
-                .zip(self.lrs.iter())
-                .zip(self.m.iter_mut().zip(self.v.iter_mut()))
-            {
-                let lr = *lr;
-                let g = p.grad();
-                if !g.defined() {
-                    continue;
-                }
-                *m *= beta1;
-                *m += &g * (1.0 - beta1);
-                *v *= beta2;
-                let _ = v.addcmul_(&(&g * (1.0 - beta2)), &g);
-                let denom = v.sqrt() / bc2.sqrt() + eps;
-                *p -= &*m / denom * (lr / bc1);
+        let (bc1, bc2) = self.bias_corrections();
+        self.m *= beta1;
+        self.m += g * (1.0 - beta1);
+        self.v *= beta2;
+        let _ = self.v.addcmul_(&(g * (1.0 - beta2)), g);
+        let denom = self.v.sqrt() / bc2.sqrt() + eps;
+        let update = &self.m / denom * &self.lr / bc1;
+        for ((_, p), &(offset, len)) in self.params.iter_mut().zip(&self.spans) {
+            *p -= update.narrow(0, offset, len).view_(p.size());
+        }
+    }
+
+    /// The step variable by variable, skipping those without a gradient.
+    fn apply_each(&mut self, grads: &[Tensor]) {
+        let OptimConfig {
+            beta1, beta2, eps, ..
+        } = self.cfg;
+        let (bc1, bc2) = self.bias_corrections();
+        for (((_, p), &(offset, len)), g) in self.params.iter_mut().zip(&self.spans).zip(grads) {
+            if !g.defined() {
+                continue;
             }
-        });
+            let g = g.reshape([-1]);
+            let mut m = self.m.narrow(0, offset, len);
+            let mut v = self.v.narrow(0, offset, len);
+            m *= beta1;
+            m += &g * (1.0 - beta1);
+            v *= beta2;
+            let _ = v.addcmul_(&(&g * (1.0 - beta2)), &g);
+            let denom = v.sqrt() / bc2.sqrt() + eps;
+            let update = &m / denom * self.lr.narrow(0, offset, len) / bc1;
+            *p -= update.view_(p.size());
+        }
+    }
+
+    /// A variable's slice of a flat buffer, in the variable's shape (a view: writes go through).
+    fn slice(&self, buffer: &Tensor, i: usize) -> Tensor {
+        let (offset, len) = self.spans[i];
+        buffer.narrow(0, offset, len).view_(self.params[i].1.size())
     }
 
     /// Moments as named tensors (`adam.m.<var>`, `adam.v.<var>`).
     pub fn state(&self) -> Vec<(String, Tensor)> {
         let mut out = Vec::with_capacity(2 * self.params.len());
-        for ((name, _), (m, v)) in self.params.iter().zip(self.m.iter().zip(self.v.iter())) {
-            out.push((format!("adam.m.{name}"), m.shallow_clone()));
-            out.push((format!("adam.v.{name}"), v.shallow_clone()));
+        for (i, (name, _)) in self.params.iter().enumerate() {
+            out.push((format!("adam.m.{name}"), self.slice(&self.m, i)));
+            out.push((format!("adam.v.{name}"), self.slice(&self.v, i)));
         }
         out
     }
@@ -127,12 +190,8 @@ impl Adam {
         step: i64,
         state: &HashMap<String, Tensor>,
     ) -> Result<(), OptimStateError> {
-        for ((name, p), (m, v)) in self
-            .params
-            .iter()
-            .zip(self.m.iter_mut().zip(self.v.iter_mut()))
-        {
-            for (prefix, dst) in [("adam.m.", m), ("adam.v.", v)] {
+        for (i, (name, p)) in self.params.iter().enumerate() {
+            for (prefix, buffer) in [("adam.m.", &self.m), ("adam.v.", &self.v)] {
                 let key = format!("{prefix}{name}");
                 let src = state
                     .get(&key)
@@ -144,6 +203,7 @@ impl Adam {
                         expected: p.size(),
                     });
                 }
+                let mut dst = self.slice(buffer, i);
                 tch::no_grad(|| dst.copy_(src));
             }
         }
