@@ -47,7 +47,7 @@ git archive HEAD | tar -x -C "$work/src"
 sed -i "s/^tch = \".*\"/tch = \"$tch_version\"/" "$work/src/Cargo.toml"
 sed -i "s/^torch-sys = \".*\"/torch-sys = \"$tch_version\"/" "$work/src/agent/Cargo.toml"
 # libtorch_cuda's own CUDA libraries are not here; they are resolved on the GPU machine.
-(cd "$work/src" && LIBTORCH="$libtorch" RUSTFLAGS="-C link-arg=-Wl,--allow-shlib-undefined" \
+(cd "$work/src" && unset LIBTORCH_USE_PYTORCH && LIBTORCH="$libtorch" RUSTFLAGS="-C link-arg=-Wl,--allow-shlib-undefined" \
   cargo build --release -p million --bin million)
 cp "$work/src/target/release/million" "$stage/bin/million"
 strip "$stage/bin/million"
