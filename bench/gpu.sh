@@ -18,10 +18,10 @@ mkdir -p "$out"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv | tee "$out/gpu.txt"
 nproc | tee "$out/cores.txt"
 # The learner alone on CUDA (runtime.device = "cuda").
-$bin bench learner --config configs/bench/ml10-gpu.toml --iters 20 | tee "$out/learner.txt"
+"$bin" bench learner --config configs/bench/ml10-gpu.toml --iters 20 | tee "$out/learner.txt"
 # The same update in the PyTorch reference on the same device, losses checked first.
-$bin bench learner --config configs/bench/ml10-gpu.toml --reference --python "$python" --iters 20 --rounds 3 \
+"$bin" bench learner --config configs/bench/ml10-gpu.toml --reference --python "$python" --iters 20 --rounds 3 \
   --threads 1 --json | tee "$out/learner-reference.json"
 # End to end: 14 local env servers, learner and actor on the GPU.
-$bin bench train --config configs/bench/ml10-gpu.toml --seconds "$seconds" --json \
+"$bin" bench train --config configs/bench/ml10-gpu.toml --seconds "$seconds" --json \
   | tee "$out/train.json"

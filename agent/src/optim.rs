@@ -24,7 +24,7 @@ pub enum OptimStateError {
 /// an update is a dozen whole-buffer kernels plus one `sub_` per variable, where a loop over
 /// the variables launched a dozen per variable (on a GPU, launch-bound at these sizes, the
 /// loop made the update ~1.3x slower than PyTorch's fused Adam; BENCHMARKS.md, "GPU").
-/// The arithmetic is the same as the loop's and PyTorch's.
+/// The formula is the loop's and PyTorch's (roundings may differ in the last bit).
 #[derive(Debug)]
 pub struct Adam {
     cfg: OptimConfig,
@@ -36,6 +36,8 @@ pub struct Adam {
     m: Tensor,
     v: Tensor,
     step: i64,
+    /// Whether the slow path (a variable without a gradient) was reported already.
+    warned_missing_grad: bool,
 }
 
 impl Adam {
@@ -59,6 +61,14 @@ impl Adam {
             .map_or((tch::Kind::Float, vs.device()), |(_, p)| {
                 (p.kind(), p.device())
             });
+        // One flat buffer needs one kind and one device (the agent's variables are all f32
+        // on the run's device).
+        assert!(
+            params
+                .iter()
+                .all(|(_, p)| p.kind() == kind && p.device() == device),
+            "Adam's variables must share one kind and device"
+        );
         let zeros = || Tensor::zeros([total], (kind, device));
         Self {
             lr: Tensor::full([total], cfg.lr, (kind, device)),
@@ -68,6 +78,7 @@ impl Adam {
             m: zeros(),
             v: zeros(),
             step: 0,
+            warned_missing_grad: false,
         }
     }
 
@@ -94,6 +105,7 @@ impl Adam {
     /// returns false). One device-to-host read decides, not one per variable.
     pub fn step_if_finite(&mut self) -> bool {
         if self.params.is_empty() {
+            self.step += 1;
             return true;
         }
         tch::no_grad(|| {
@@ -106,7 +118,12 @@ impl Adam {
                 }
                 self.apply(&g);
             } else {
-                // A variable outside the loss (none in the agent today): step the others.
+                // A variable outside the loss (none in the agent today): step the others,
+                // one variable at a time (the old cost: a host read per variable).
+                if !self.warned_missing_grad {
+                    self.warned_missing_grad = true;
+                    tracing::warn!("a trainable variable has no gradient; Adam steps per variable");
+                }
                 let finite = grads
                     .iter()
                     .filter(|g| g.defined())

@@ -1,4 +1,5 @@
-# Sourced by the GPU scripts (bench/gpu.sh, bench/gpu/ladder.sh) from the repository root:
+# Sourced by the GPU scripts (bench/gpu.sh, bench/gpu/ladder.sh, bench/gpu/ml10.sh) from the
+# repository root, on the GPU machine:
 # sets $bin (the agent) and $python (the Python of the bench's reference side) and the
 # environment the agent's local env servers need. On an offline GPU machine it uses what
 # `bash bench/gpu/stage.sh` staged in .gpu/; elsewhere it builds with `make build`.
@@ -17,7 +18,7 @@ if [ -x .gpu/bin/million ]; then
   # No libEGL there (rendering is not needed to train or time): MuJoCo without a GL context.
   export MUJOCO_GL=disable
   server="$PWD/.gpu/million-env-server"
-  printf '#!/bin/sh\nexec %s -m million_env.cli "$@"\n' "$python" >"$server"
+  printf '#!/bin/sh\nexec "%s" -m million_env.cli "$@"\n' "$python" >"$server"
   chmod +x "$server"
   export MILLION_ENV_SERVER="$server"
 else

@@ -16,18 +16,19 @@ for arm in 2-ml1-reach 2-ml1-reach-no-instructions; do
   for seed in 1 2; do
     run="runs/gpu-$arm-seed$seed"
     rm -rf "$run"
-    timeout --foreground -s INT -k 60 "$seconds" "$bin" train --config "configs/gpu/$arm.toml" \
+    timeout --foreground --preserve-status -s INT -k 60 "$seconds" "$bin" train --config "configs/gpu/$arm.toml" \
       --seed "$seed" --run-dir "$run" >"$out/$arm-seed$seed.log" 2>&1 &
     pids+=($!)
   done
 done
 status=0
-# timeout's 124 is the planned stop; anything else is a failure.
-for pid in "${pids[@]}"; do wait "$pid" || { rc=$?; [ "$rc" -eq 124 ] || status=$rc; }; done
+# --preserve-status: the agent's own status (0 after a SIGINT stop), so a failed final
+# evaluation or checkpoint is a failure here too.
+for pid in "${pids[@]}"; do wait "$pid" || status=$?; done
 for arm in 2-ml1-reach 2-ml1-reach-no-instructions; do
   for seed in 1 2; do
     cp "runs/gpu-$arm-seed$seed/metrics.jsonl" "$out/$arm-seed$seed.jsonl" || status=1
   done
 done
-tar -czf "$out/logs.tar.gz" -C "$out" --remove-files $(cd "$out" && ls -- *.log)
+(cd "$out" && tar -czf logs.tar.gz --remove-files -- *.log) || status=1
 exit "$status"

@@ -11,7 +11,9 @@ mkdir -p "$out"
 run=runs/gpu-4-ml10
 rm -rf "$run"
 status=0
-timeout --foreground -s INT -k 90 "$seconds" "$bin" train --config configs/gpu/4-ml10.toml \
-  --run-dir "$run" >"$out/4-ml10.log" 2>&1 || { rc=$?; [ "$rc" -eq 124 ] || status=$rc; }
-cp "$run/metrics.jsonl" "$out/4-ml10.jsonl"
+# --preserve-status: the agent's own status (0 after a SIGINT stop).
+timeout --foreground --preserve-status -s INT -k 90 "$seconds" "$bin" train \
+  --config configs/gpu/4-ml10.toml --run-dir "$run" >"$out/4-ml10.log" 2>&1 || status=$?
+cp "$run/metrics.jsonl" "$out/4-ml10.jsonl" || status=1
+gzip -f "$out/4-ml10.log"
 exit "$status"

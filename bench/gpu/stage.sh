@@ -26,7 +26,8 @@ stage="$root/.gpu"
 work="${GPU_STAGE_WORK:-/tmp/million-gpu-stage}"   # downloads and the build, kept between runs
 python="$root/.venv/bin/python"
 test -x "$python" || { echo "run 'make setup' first (the staging uses .venv's Python)" >&2; exit 1; }
-grep -qx '/.gpu/' .git/info/exclude 2>/dev/null || { mkdir -p .git/info; echo /.gpu/ >>.git/info/exclude; }
+exclude=$(git rev-parse --git-path info/exclude)
+grep -qx '/.gpu/' "$exclude" 2>/dev/null || { mkdir -p "$(dirname "$exclude")"; echo /.gpu/ >>"$exclude"; }
 rm -rf "$stage"
 mkdir -p "$stage/bin" "$stage/whl" "$work"
 
@@ -34,6 +35,7 @@ mkdir -p "$stage/bin" "$stage/whl" "$work"
 #    machine's own copy is used at run time).
 libtorch="${GPU_LIBTORCH:-$work/libtorch/torch}"
 if [ ! -d "$libtorch/lib" ]; then
+  # Any Python's wheel holds the same libtorch; only its headers and libraries are used.
   "$python" -m pip download -q --no-deps --only-binary=:all: --python-version 3.11 \
     --implementation cp --platform manylinux_2_28_x86_64 -d "$work" "torch==$torch_version"
   unzip -q -o "$work"/torch-"$torch_version"-*.whl 'torch/include/*' 'torch/lib/*' \
