@@ -88,10 +88,11 @@ def parse_task_order(task_order: str) -> bool:
     return task_order == "cycle"
 
 
-#: Idle built envs a server process keeps by default (see `BuiltEnvs`). Measured on ML10 and
-#: ML45 with 32 slots per process (BENCHMARKS.md): 16 idle envs keep memory near 30 MB per slot
-#: while a new task finds its class already built in most resets.
-DEFAULT_IDLE_ENVS = 16
+#: Idle built envs a server process keeps by default (see `BuiltEnvs`). Measured with 32 slots
+#: per process serving million/ML10-train (BENCHMARKS.md, server memory): 16 idle envs peaked
+#: at 42 MB per slot, 12 at 39.6 MB (0.50 builds per episode begun instead of 0.44; a build
+#: is ~0.2 s of a core), 8 at 36.9 MB (0.61 builds).
+DEFAULT_IDLE_ENVS = 12
 
 
 class BuiltEnvs:
