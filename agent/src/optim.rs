@@ -148,16 +148,8 @@ impl Adam {
 
     /// The step on the flat gradient of every variable.
     fn apply(&mut self, g: &Tensor) {
-        let OptimConfig {
-            beta1, beta2, eps, ..
-        } = self.cfg;
-        let (bc1, bc2) = self.bias_corrections();
-        self.m *= beta1;
-        self.m += g * (1.0 - beta1);
-        self.v *= beta2;
-        let _ = self.v.addcmul_(&(g * (1.0 - beta2)), g);
-        let denom = self.v.sqrt() / bc2.sqrt() + eps;
-        let update = &self.m / denom * &self.lr / bc1;
+        let bias = self.bias_corrections();
+        let update = adam_update(&self.cfg, bias, &mut self.m, &mut self.v, g, &self.lr);
         for ((_, p), &(offset, len)) in self.params.iter_mut().zip(&self.spans) {
             *p -= update.narrow(0, offset, len).view_(p.size());
         }
@@ -165,23 +157,15 @@ impl Adam {
 
     /// The step variable by variable, skipping those without a gradient.
     fn apply_each(&mut self, grads: &[Tensor]) {
-        let OptimConfig {
-            beta1, beta2, eps, ..
-        } = self.cfg;
-        let (bc1, bc2) = self.bias_corrections();
+        let bias = self.bias_corrections();
         for (((_, p), &(offset, len)), g) in self.params.iter_mut().zip(&self.spans).zip(grads) {
             if !g.defined() {
                 continue;
             }
-            let g = g.reshape([-1]);
             let mut m = self.m.narrow(0, offset, len);
             let mut v = self.v.narrow(0, offset, len);
-            m *= beta1;
-            m += &g * (1.0 - beta1);
-            v *= beta2;
-            let _ = v.addcmul_(&(&g * (1.0 - beta2)), &g);
-            let denom = v.sqrt() / bc2.sqrt() + eps;
-            let update = &m / denom * self.lr.narrow(0, offset, len) / bc1;
+            let lr = self.lr.narrow(0, offset, len);
+            let update = adam_update(&self.cfg, bias, &mut m, &mut v, &g.reshape([-1]), &lr);
             *p -= update.view_(p.size());
         }
     }
@@ -226,5 +210,92 @@ impl Adam {
         }
         self.step = step;
         Ok(())
+    }
+}
+
+/// Adam's arithmetic on flat tensors of one length: updates the moments `m` and `v` in
+/// place from the gradient `g` and returns the step to subtract (element-wise step sizes
+/// `lr`; `bias` = (1 − β₁ᵗ, 1 − β₂ᵗ)). Both the flat and the per-variable path call this.
+fn adam_update(
+    cfg: &OptimConfig,
+    (bc1, bc2): (f64, f64),
+    m: &mut Tensor,
+    v: &mut Tensor,
+    g: &Tensor,
+    lr: &Tensor,
+) -> Tensor {
+    let OptimConfig {
+        beta1, beta2, eps, ..
+    } = *cfg;
+    *m *= beta1;
+    *m += g * (1.0 - beta1);
+    *v *= beta2;
+    let _ = v.addcmul_(&(g * (1.0 - beta2)), g);
+    let denom = v.sqrt() / bc2.sqrt() + eps;
+    &*m / denom * lr / bc1
+}
+
+#[cfg(test)]
+mod tests {
+    use tch::nn::{Init, VarStore};
+    use tch::{Device, Kind, Tensor};
+
+    use super::*;
+
+    /// Variables `a` and `b` (and, with `idle`, a variable `c` outside the loss), the same
+    /// start values in every store.
+    fn store(idle: bool) -> (VarStore, Tensor, Tensor) {
+        let vs = VarStore::new(Device::Cpu);
+        let root = vs.root();
+        let a = root.var_copy("a", &Tensor::from_slice(&[0.5f32, -1.0, 2.0]));
+        let b = root.var_copy("b", &Tensor::from_slice(&[1.5f32, 0.25]).view([2, 1]));
+        if idle {
+            let _ = root.var("c", &[4], Init::Const(1.0));
+        }
+        (vs, a, b)
+    }
+
+    fn train(idle: bool) -> (Tensor, Tensor) {
+        let (vs, a, b) = store(idle);
+        let cfg = OptimConfig {
+            lr: 0.1,
+            ..OptimConfig::default()
+        };
+        let mut adam = Adam::new(&vs, cfg);
+        adam.set_lr_for_prefix("b", 0.05);
+        for k in 0..4 {
+            adam.zero_grad();
+            let loss = (&a * (k as f64 + 1.0)).square().sum(Kind::Float)
+                + (&b - 3.0).pow_tensor_scalar(3).sum(Kind::Float);
+            loss.backward();
+            assert!(adam.step_if_finite());
+        }
+        (a.detach().copy(), b.detach().copy())
+    }
+
+    #[test]
+    fn the_per_variable_path_steps_as_the_flat_one() {
+        // Without `c` every variable has a gradient: the flat path. With it, `c` gets none
+        // and the per-variable path runs; `a` and `b` must end where the flat path left them.
+        let (flat_a, flat_b) = train(false);
+        let (each_a, each_b) = train(true);
+        assert!(flat_a.allclose(&each_a, 1e-6, 1e-7, false));
+        assert!(flat_b.allclose(&each_b, 1e-6, 1e-7, false));
+        // And they moved, `b` at its own step size.
+        let (_, start_a, start_b) = store(false);
+        assert!(!flat_a.allclose(&start_a, 1e-3, 1e-3, false));
+        assert!(!flat_b.allclose(&start_b, 1e-2, 1e-2, false));
+    }
+
+    #[test]
+    fn a_non_finite_gradient_changes_nothing() {
+        let (vs, a, _b) = store(false);
+        let mut adam = Adam::new(&vs, OptimConfig::default());
+        let before = a.detach().copy();
+        adam.zero_grad();
+        (a.sum(Kind::Float) * f64::NAN).backward();
+        assert!(!adam.step_if_finite());
+        assert!(a.detach().equal(&before));
+        assert_eq!(adam.steps(), 0);
     }
 }
