@@ -8,7 +8,7 @@
 
 use std::collections::BTreeMap;
 
-use million_env::{AutoresetMode, ClientConfig, EnvPool, PoolConfig};
+use million_env::{AutoresetMode, ClientConfig, EnvPool, PoolConfig, StepBatch};
 use serde::Serialize;
 
 use crate::model::Model;
@@ -75,7 +75,31 @@ impl Evaluator {
         &self.split
     }
 
+    /// Scores the split. An env server lost partway through (its episodes come back cut)
+    /// voids the attempt: the trials that had ended by then are the short ones, often the
+    /// successful ones, so scoring them alone overstates success (seen: 1.00 on a split whose
+    /// true rate was ~0.2). The pool has rebuilt the envs by then, and the same seeds make
+    /// the retry score the same episodes.
     pub async fn run(&mut self, model: &Model) -> anyhow::Result<EvalReport> {
+        for attempt in 1..=EVAL_ATTEMPTS {
+            match self.run_once(model).await? {
+                Some(report) => return Ok(report),
+                None if attempt < EVAL_ATTEMPTS => tracing::warn!(
+                    split = %self.split.name,
+                    attempt,
+                    "an env server was lost during the evaluation; scoring it again"
+                ),
+                None => {}
+            }
+        }
+        anyhow::bail!(
+            "eval split {}: an env server was lost during each of {EVAL_ATTEMPTS} attempts",
+            self.split.name
+        )
+    }
+
+    /// One attempt; `None` when an episode it scores was cut by a lost server.
+    async fn run_once(&mut self, model: &Model) -> anyhow::Result<Option<EvalReport>> {
         // Same seeds every time: the tasks, goals and starts of an eval are those of the
         // last one, so successive evals compare like with like and every task keeps its share
         // (unseeded resets would continue each env's task cycle from wherever it stopped).
@@ -84,59 +108,122 @@ impl Evaluator {
         let tasks: Vec<String> = (0..self.episodes)
             .map(|row| text(&reset.info, "task_name", row).unwrap_or_else(|| env_id.clone()))
             .collect();
-        let (scored, per_task_episodes) = equal_share_per_task(&tasks);
+        let mut tally = EvalTally::new(&tasks, &env_id);
         let mut actor = GroupActor::new(model, &self.pool, 0);
         actor.observe_reset(model, &reset.obs)?;
-        // Rows not scored are done from the start: their trials and returns are ignored.
-        let mut done: Vec<bool> = scored.iter().map(|s| !s).collect();
-        let mut trial_index = vec![0usize; self.episodes];
-        let mut table = SuccessTable::default();
-        let mut first = SuccessTable::default();
-        let mut tracker = TrialTracker::new(self.episodes, &env_id);
-        let mut returns = vec![0.0; self.episodes];
-        while done.iter().any(|d| !d) {
+        while !tally.finished() {
             actor.act_and_send(model, &mut self.pool, &self.bounds, true)?;
             let step = self.pool.recv(0).await?;
             actor.observe_step(model, &step, false)?;
-            for t in tracker.outcomes(0, &step) {
-                if done[t.row] {
-                    continue;
-                }
-                table.record(&t.task, t.success);
-                if trial_index[t.row] == 0 {
-                    first.record("all", t.success);
-                }
-                trial_index[t.row] += 1;
-            }
-            for (row, end) in step.ended().into_iter().enumerate() {
-                if !done[row] {
-                    returns[row] += step.reward[row];
-                    done[row] = end;
-                }
+            if tally.observe(&step) == Scoring::Void {
+                return Ok(None);
             }
         }
-        let scored_episodes = scored.iter().filter(|&&s| s).count();
-        Ok(EvalReport {
-            split: self.split.name.clone(),
-            env_id,
-            episodes: scored_episodes,
-            episodes_per_task: per_task_episodes,
-            trials: table.trials(),
-            per_task: table.per_task(),
-            per_task_trials: table
-                .tasks
-                .iter()
-                .map(|(k, (_, n))| (k.clone(), *n))
-                .collect(),
-            mean: table.mean(),
-            first_trial: first.mean(),
-            mean_return: returns.iter().sum::<f64>() / scored_episodes.max(1) as f64,
-        })
+        Ok(Some(tally.report(&self.split.name, env_id)))
     }
 
     pub async fn close(self) -> anyhow::Result<()> {
         self.pool.close().await?;
         Ok(())
+    }
+}
+
+/// Attempts at one evaluation before it fails (each lost server voids one).
+const EVAL_ATTEMPTS: usize = 3;
+
+/// Whether an evaluation can still be scored after a step.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scoring {
+    Going,
+    /// A scored episode was cut by a lost env server: the attempt must be repeated.
+    Void,
+}
+
+/// The scoring of one deterministic evaluation, fed one step reply at a time: the rows
+/// of `equal_share_per_task` play one episode each; successes per task and first-trial
+/// successes are counted, and a cut episode voids the lot.
+#[derive(Debug, Clone)]
+pub struct EvalTally {
+    /// Rows not scored are done from the start: their trials and returns are ignored.
+    done: Vec<bool>,
+    scored: usize,
+    per_task_episodes: usize,
+    trial_index: Vec<usize>,
+    table: SuccessTable,
+    first: SuccessTable,
+    tracker: TrialTracker,
+    returns: Vec<f64>,
+}
+
+impl EvalTally {
+    /// `tasks`: each row's task at the reset; `default_task` names trials of envs
+    /// that report no task.
+    pub fn new(tasks: &[String], default_task: &str) -> Self {
+        let (scored, per_task_episodes) = equal_share_per_task(tasks);
+        Self {
+            done: scored.iter().map(|s| !s).collect(),
+            scored: scored.iter().filter(|&&s| s).count(),
+            per_task_episodes,
+            trial_index: vec![0; tasks.len()],
+            table: SuccessTable::default(),
+            first: SuccessTable::default(),
+            tracker: TrialTracker::new(tasks.len(), default_task),
+            returns: vec![0.0; tasks.len()],
+        }
+    }
+
+    /// Every scored episode has ended.
+    pub fn finished(&self) -> bool {
+        self.done.iter().all(|&d| d)
+    }
+
+    /// Counts the trials and returns of one step reply of every row.
+    pub fn observe(&mut self, step: &StepBatch) -> Scoring {
+        if step
+            .cut
+            .iter()
+            .zip(&self.done)
+            .any(|(&cut, &done)| cut && !done)
+        {
+            return Scoring::Void;
+        }
+        for t in self.tracker.outcomes(0, step) {
+            if self.done[t.row] {
+                continue;
+            }
+            self.table.record(&t.task, t.success);
+            if self.trial_index[t.row] == 0 {
+                self.first.record("all", t.success);
+            }
+            self.trial_index[t.row] += 1;
+        }
+        for (row, end) in step.ended().into_iter().enumerate() {
+            if !self.done[row] {
+                self.returns[row] += step.reward[row];
+                self.done[row] = end;
+            }
+        }
+        Scoring::Going
+    }
+
+    pub fn report(&self, split: &str, env_id: String) -> EvalReport {
+        EvalReport {
+            split: split.to_owned(),
+            env_id,
+            episodes: self.scored,
+            episodes_per_task: self.per_task_episodes,
+            trials: self.table.trials(),
+            per_task: self.table.per_task(),
+            per_task_trials: self
+                .table
+                .tasks
+                .iter()
+                .map(|(k, (_, n))| (k.clone(), *n))
+                .collect(),
+            mean: self.table.mean(),
+            first_trial: self.first.mean(),
+            mean_return: self.returns.iter().sum::<f64>() / self.scored.max(1) as f64,
+        }
     }
 }
 
