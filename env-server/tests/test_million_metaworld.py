@@ -60,6 +60,7 @@ def test_registered_ids() -> None:
         "trials": 3,
         "trial_len": 200,
         "task_order": "random",
+        "instruction_goal": "true",
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):
@@ -86,6 +87,29 @@ def test_goal_pos_is_the_real_goal_and_words_are_glove_rows(reach_env: MillionEn
             else:
                 np.testing.assert_array_equal(vector, table.matrix[table.row(token)])
     assert len(goals) > 1, "different seeds sample different goals"
+
+
+def test_reflected_instruction_goal_names_a_wrong_goal_in_the_goal_range() -> None:
+    """The diagnostic `instruction_goal="reflected"`: goal_pos names the real goal
+    reflected through the centre of reach's goal box (a goal the agent must not reach),
+    while the MDP, its success test and info's `goal` keep the real one."""
+    env = make("million/ML1-train", instruction_goal="reflected")
+    try:
+        for seed in range(3):
+            obs, info = env.reset(seed=seed)
+            goal = real_goal(env)
+            np.testing.assert_array_equal(info["goal"], goal)
+            low, high = env.current_task.goal_range()
+            _obs, _info, words = skip_instruction(env, obs, info)
+            named = next(v[:3] for t, v in words if t == "goal_pos")
+            np.testing.assert_allclose(named, (low + high - goal).astype(np.float32), atol=1e-6)
+            assert np.all(named >= low - 1e-6) and np.all(named <= high + 1e-6)
+            # Farther from the real goal than reach's 5 cm success radius.
+            assert np.linalg.norm(named - goal) > 0.05
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="instruction_goal"):
+        make("million/ML1-train", instruction_goal="swapped")
 
 
 def test_goal_is_kept_across_trials(reach_env: MillionEnv) -> None:

@@ -34,6 +34,10 @@ pub struct EvalArgs {
     pub episodes: Option<usize>,
     #[arg(long)]
     pub json: bool,
+    /// Env kwarg for every evaluated split, over the run config's (repeatable), e.g.
+    /// `--kwarg instruction_goal=reflected` to test whether the agent reads the goal word.
+    #[arg(long = "kwarg", value_name = "NAME=VALUE", value_parser = million_env::parse_kwarg)]
+    pub kwargs: Vec<(String, million_env::Value)>,
     /// host:port of an env server (repeatable); none = start local servers.
     #[arg(long = "env-server")]
     pub env_servers: Vec<String>,
@@ -82,6 +86,10 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
             None => true,
             Some(Split::Train) => s.name == "train",
             Some(Split::Test) => s.name == "test",
+        })
+        .map(|mut s| {
+            s.kwargs.extend(a.kwargs.iter().cloned());
+            s
         })
         .collect();
     anyhow::ensure!(!splits.is_empty(), "the run config has no such eval split");

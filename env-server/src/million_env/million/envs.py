@@ -20,6 +20,7 @@ def make_metaworld_million(
     trials: int = 3,
     trial_len: int = 200,
     task_order: str = "random",
+    instruction_goal: str = "true",
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
     sentences = metaworld_instructions(instruction_set)
@@ -33,6 +34,7 @@ def make_metaworld_million(
             action_repeat=action_repeat,
             trials=trials,
             trial_len=trial_len,
+            instruction_goal=instruction_goal,
         )
     except Exception:
         source.close()
@@ -49,6 +51,7 @@ def make_point_goal_million(
     trials: int = 3,
     trial_len: int = 25,
     task_order: str = "random",
+    instruction_goal: str = "true",
 ) -> MillionEnv:
     """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
     if isinstance(num_goals, bool) or not isinstance(num_goals, int):
@@ -63,4 +66,5 @@ def make_point_goal_million(
         action_repeat=action_repeat,
         trials=trials,
         trial_len=trial_len,
+        instruction_goal=instruction_goal,
     )

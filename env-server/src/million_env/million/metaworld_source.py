@@ -47,6 +47,10 @@ class MetaWorldTask:
     def goal(self) -> npt.NDArray[np.float64]:
         return np.array(self._env._target_pos, dtype=np.float64)
 
+    def goal_range(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        space = self._env.goal_space
+        return np.asarray(space.low, dtype=np.float64), np.asarray(space.high, dtype=np.float64)
+
     def render(self, width: int, height: int, camera: str, cache: Any) -> npt.NDArray[np.uint8]:
         """The scene in its current state (`million_env.rendering.render_metaworld`)."""
         return render_metaworld(self._env, width, height, camera, cache)

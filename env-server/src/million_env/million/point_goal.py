@@ -87,6 +87,13 @@ class PointGoalTask:
     def goal(self) -> npt.NDArray[np.float64]:
         return self._goal.copy()
 
+    def goal_range(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        # The goals sit on a circle around the origin: its bounding box.
+        return (
+            np.array([-GOAL_RADIUS, -GOAL_RADIUS, 0.0]),
+            np.array([GOAL_RADIUS, GOAL_RADIUS, 0.0]),
+        )
+
     def render(self, width: int, height: int, camera: str, cache: object) -> npt.NDArray[np.uint8]:
         """A top view of the arena, north up: the goal circle (grey), the goal's success
         disc (green) and the point (blue). There are no cameras (`camera` must be "")."""

@@ -31,6 +31,9 @@ from million_env.million.instructions import EncodedInstruction, InstructionEnco
 from million_env.million.task_source import STATE_DIM, SampledTask, TaskSource
 
 TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
+#: What `goal_pos` names: the real goal, or (a diagnostic) the real goal reflected through
+#: the centre of the task's goal range, a wrong goal about as far from the centre.
+INSTRUCTION_GOALS: tuple[str, ...] = ("true", "reflected")
 # Second entropy word of the sentence generator's seed (any constant != task streams).
 _SENTENCE_STREAM = 0x5E47E4CE
 PHASE_INSTRUCTION = "instruction"
@@ -101,9 +104,14 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         action_repeat: int = 2,
         trials: int = 3,
         trial_len: int = 200,
+        instruction_goal: str = "true",
     ) -> None:
         if time_obs not in TIME_OBS_MODES:
             raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
+        if instruction_goal not in INSTRUCTION_GOALS:
+            raise ValueError(
+                f"instruction_goal must be one of {INSTRUCTION_GOALS}, got {instruction_goal!r}"
+            )
         for name, value in (
             ("action_repeat", action_repeat),
             ("trials", trials),
@@ -126,6 +134,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._sentences = {name: tuple(sentences[name]) for name in source.task_names}
         self._encoder = InstructionEncoder()
         self._instructions = instructions
+        self._reflect_goal = instruction_goal == "reflected"
         self._episode_time = time_obs == "episode"
         self._action_repeat = action_repeat
         self._trials = trials
@@ -251,9 +260,18 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             self._phase = PHASE_TRIAL
             return
         assert self._task is not None
-        self._instruction = self._encoder.encode(self._next_sentence(), self._task.goal())
+        self._instruction = self._encoder.encode(self._next_sentence(), self._named_goal())
         self._word_index = 0
         self._phase = PHASE_INSTRUCTION
+
+    def _named_goal(self) -> npt.NDArray[np.float64]:
+        """The goal that `goal_pos` encodes (`instruction_goal`); info's `goal` stays real."""
+        assert self._task is not None
+        goal = self._task.goal()
+        if self._reflect_goal:
+            low, high = self._task.goal_range()
+            goal = low + high - goal
+        return goal
 
     def _next_sentence(self) -> str:
         assert self._task is not None

@@ -42,6 +42,10 @@ class SampledTask(Protocol):
         """The real goal position (3,), valid after `reset`; what `goal_pos` encodes."""
         ...
 
+    def goal_range(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """Low and high corners (3,) of the box the task's goals are drawn from."""
+        ...
+
 
 class TaskSource(Protocol):
     """Samples the task of each episode."""
