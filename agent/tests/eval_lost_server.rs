@@ -39,6 +39,18 @@ fn tasks(info: &million_env::InfoBatch) -> Vec<String> {
         .collect()
 }
 
+/// What identifies the episodes of a reset: each row's task, sentence and goal.
+fn episodes(info: &million_env::InfoBatch) -> (Vec<String>, Vec<Option<String>>, Vec<u8>) {
+    let goal = info.get("goal").expect("a goal info field");
+    (
+        tasks(info),
+        (0..ENVS)
+            .map(|row| text(info, "instruction", row))
+            .collect(),
+        goal.value.data().to_vec(),
+    )
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_server_lost_mid_evaluation_voids_the_scores() {
     let binary = default_server_binary().expect("million-env-server installed (make setup)");
@@ -78,5 +90,9 @@ async fn a_server_lost_mid_evaluation_voids_the_scores() {
         cut.cut
     );
     assert_eq!(tally.observe(&cut), Scoring::Void);
+
+    // The retry's reset on the rebuilt envs begins the very episodes of the first.
+    let again = pool.reset_to_first_episodes(0).await.unwrap();
+    assert_eq!(episodes(&again.info), episodes(&reset.info));
     pool.close().await.unwrap();
 }

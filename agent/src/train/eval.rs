@@ -78,8 +78,8 @@ impl Evaluator {
     /// Scores the split. An env server lost partway through (its episodes come back cut)
     /// voids the attempt: the trials that had ended by then are the short ones, often the
     /// successful ones, so scoring them alone overstates success (seen: 1.00 on a split whose
-    /// true rate was ~0.2). The pool has rebuilt the envs by then, and the same seeds make
-    /// the retry score the same episodes.
+    /// true rate was ~0.2). The pool has rebuilt the envs by then, and the retry's reset
+    /// with the first seeds scores the same episodes.
     pub async fn run(&mut self, model: &Model) -> anyhow::Result<EvalReport> {
         for attempt in 1..=EVAL_ATTEMPTS {
             match self.run_once(model).await? {
@@ -98,8 +98,10 @@ impl Evaluator {
         )
     }
 
-    /// One attempt; `None` when an episode it scores was cut by a lost server.
+    /// One attempt; `None` when an env server was lost during it (an episode it scores was
+    /// cut, or its envs were rebuilt during the reset, which reseeds them differently).
     async fn run_once(&mut self, model: &Model) -> anyhow::Result<Option<EvalReport>> {
+        let rebuilds = self.pool.stats().rebuilds;
         // Same seeds every time: the tasks, goals and starts of an eval are those of the
         // last one, so successive evals compare like with like and every task keeps its share
         // (unseeded resets would continue each env's task cycle from wherever it stopped).
@@ -118,6 +120,9 @@ impl Evaluator {
             if tally.observe(&step) == Scoring::Void {
                 return Ok(None);
             }
+        }
+        if self.pool.stats().rebuilds != rebuilds {
+            return Ok(None);
         }
         Ok(Some(tally.report(&self.split.name, env_id)))
     }

@@ -325,7 +325,15 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                 iv.next_eval = next_multiple(agent_steps, cfg.train.eval_interval);
                 let mut s = Scalars::new();
                 for ev in evaluators.iter_mut() {
-                    let r = ev.run(&model).await?;
+                    // A failed periodic evaluation (its env servers lost on every attempt)
+                    // is skipped, not the end of the run: training has its own pool.
+                    let r = match ev.run(&model).await {
+                        Ok(r) => r,
+                        Err(e) => {
+                            tracing::warn!("evaluation at {agent_steps} steps skipped: {e:#}");
+                            continue;
+                        }
+                    };
                     record_eval(&mut s, &r);
                     curve.push(CurvePoint {
                         agent_steps,
