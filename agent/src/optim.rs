@@ -281,21 +281,42 @@ mod tests {
         let (each_a, each_b) = train(true);
         assert!(flat_a.allclose(&each_a, 1e-6, 1e-7, false));
         assert!(flat_b.allclose(&each_b, 1e-6, 1e-7, false));
-        // And they moved, `b` at its own step size.
+        // And they moved.
         let (_, start_a, start_b) = store(false);
         assert!(!flat_a.allclose(&start_a, 1e-3, 1e-3, false));
         assert!(!flat_b.allclose(&start_b, 1e-2, 1e-2, false));
     }
 
     #[test]
-    fn a_non_finite_gradient_changes_nothing() {
-        let (vs, a, _b) = store(false);
-        let mut adam = Adam::new(&vs, OptimConfig::default());
-        let before = a.detach().copy();
+    fn the_first_step_moves_each_element_by_its_step_size() {
+        // Adam's first step is lr · sign(g) (up to eps): 0.1 for `a`, 0.05 for `b`.
+        let (vs, a, b) = store(false);
+        let cfg = OptimConfig {
+            lr: 0.1,
+            ..OptimConfig::default()
+        };
+        let mut adam = Adam::new(&vs, cfg);
+        adam.set_lr_for_prefix("b", 0.05);
+        let (a0, b0) = (a.detach().copy(), b.detach().copy());
         adam.zero_grad();
-        (a.sum(Kind::Float) * f64::NAN).backward();
-        assert!(!adam.step_if_finite());
-        assert!(a.detach().equal(&before));
-        assert_eq!(adam.steps(), 0);
+        (a.sum(Kind::Float) + b.sum(Kind::Float)).backward();
+        assert!(adam.step_if_finite());
+        assert!((&a0 - a.detach()).allclose(&a0.full_like(0.1), 1e-5, 1e-6, false));
+        assert!((&b0 - b.detach()).allclose(&b0.full_like(0.05), 1e-5, 1e-6, false));
+    }
+
+    #[test]
+    fn a_non_finite_gradient_changes_nothing() {
+        // Both paths: every variable in the loss (flat), and `c` outside it (per variable).
+        for idle in [false, true] {
+            let (vs, a, b) = store(idle);
+            let mut adam = Adam::new(&vs, OptimConfig::default());
+            let (a0, b0) = (a.detach().copy(), b.detach().copy());
+            adam.zero_grad();
+            (a.sum(Kind::Float) * f64::NAN + b.sum(Kind::Float)).backward();
+            assert!(!adam.step_if_finite());
+            assert!(a.detach().equal(&a0) && b.detach().equal(&b0));
+            assert_eq!(adam.steps(), 0);
+        }
     }
 }
