@@ -60,7 +60,7 @@ def test_registered_ids() -> None:
         "trials": 3,
         "trial_len": 200,
         "task_order": "random",
-        "instruction_goal": "true",
+        "instruction_goal": "real",
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):

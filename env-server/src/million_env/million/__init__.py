@@ -2,7 +2,7 @@
 
 Env ids (all take the protocol kwargs instruction_set='train'|'heldout',
 instructions, time_obs='trial'|'episode', action_repeat, trials, trial_len,
-instruction_goal='true'|'reflected'):
+instruction_goal='real'|'reflected'):
 
 - ``million/ML1-{train,test}`` (kwarg ``task``, default 'reach-v3'),
   ``million/ML10-{train,test}``, ``million/ML45-{train,test}``: Meta-World v3.

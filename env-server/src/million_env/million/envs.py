@@ -20,7 +20,7 @@ def make_metaworld_million(
     trials: int = 3,
     trial_len: int = 200,
     task_order: str = "random",
-    instruction_goal: str = "true",
+    instruction_goal: str = "real",
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
     sentences = metaworld_instructions(instruction_set)
@@ -51,7 +51,7 @@ def make_point_goal_million(
     trials: int = 3,
     trial_len: int = 25,
     task_order: str = "random",
-    instruction_goal: str = "true",
+    instruction_goal: str = "real",
 ) -> MillionEnv:
     """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
     if isinstance(num_goals, bool) or not isinstance(num_goals, int):

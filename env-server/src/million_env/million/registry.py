@@ -27,7 +27,7 @@ _MEANINGS = {
     "num_goals": "2|4|8",
     "task": "Meta-World task class",
     "task_order": "'random'|'cycle' (cycle: task (seed + k) mod n at the k-th episode)",
-    "instruction_goal": "'true'|'reflected' (diagnostic: goal_pos names a wrong goal)",
+    "instruction_goal": "'real'|'reflected' (diagnostic: goal_pos names a wrong goal)",
 }
 
 

@@ -43,7 +43,10 @@ class SampledTask(Protocol):
         ...
 
     def goal_range(self) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """Low and high corners (3,) of the box the task's goals are drawn from."""
+        """Low and high corners (3,) of the task's goal box (Meta-World: the env's
+        `goal_space`). For reach-like tasks the goals are drawn from it; for tasks whose
+        target follows an object (button-press, drawer-close, ...) it only bounds the hand,
+        so `instruction_goal="reflected"` is a meaningful wrong goal for the former only."""
         ...
 
 
