@@ -255,14 +255,20 @@ mod tests {
         (vs, a, b)
     }
 
-    fn train(idle: bool) -> (Tensor, Tensor) {
-        let (vs, a, b) = store(idle);
+    /// Adam over `vs` with step size 0.1, and 0.05 for `b`.
+    fn adam(vs: &VarStore) -> Adam {
         let cfg = OptimConfig {
             lr: 0.1,
             ..OptimConfig::default()
         };
-        let mut adam = Adam::new(&vs, cfg);
+        let mut adam = Adam::new(vs, cfg);
         adam.set_lr_for_prefix("b", 0.05);
+        adam
+    }
+
+    fn train(idle: bool) -> (Tensor, Tensor) {
+        let (vs, a, b) = store(idle);
+        let mut adam = adam(&vs);
         for k in 0..4 {
             adam.zero_grad();
             let loss = (&a * (k as f64 + 1.0)).square().sum(Kind::Float)
@@ -291,12 +297,7 @@ mod tests {
     fn the_first_step_moves_each_element_by_its_step_size() {
         // Adam's first step is lr · sign(g) (up to eps): 0.1 for `a`, 0.05 for `b`.
         let (vs, a, b) = store(false);
-        let cfg = OptimConfig {
-            lr: 0.1,
-            ..OptimConfig::default()
-        };
-        let mut adam = Adam::new(&vs, cfg);
-        adam.set_lr_for_prefix("b", 0.05);
+        let mut adam = adam(&vs);
         let (a0, b0) = (a.detach().copy(), b.detach().copy());
         adam.zero_grad();
         (a.sum(Kind::Float) + b.sum(Kind::Float)).backward();
