@@ -39,17 +39,23 @@ async fn step_all(pool: &mut EnvPool, sampler: &mut ActionSampler) -> Vec<StepBa
     out
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn restarted_server_cuts_its_episodes_and_the_pool_goes_on() {
-    init_tracing();
-    let (a, mut b) = tokio::join!(common::start_server(), common::start_server());
-    let mut pool = EnvPool::connect(patient_config(
+/// Two fresh servers and a pool of 4 envs in 2 groups over them: envs 0 and 3 live on the
+/// first server, envs 1 and 2 on the second, so each group has one env on each.
+async fn pool_over_two_servers() -> (common::Server, common::Server, EnvPool) {
+    let (a, b) = tokio::join!(common::start_server(), common::start_server());
+    let pool = EnvPool::connect(patient_config(
         vec![a.addr().to_owned(), b.addr().to_owned()],
         AutoresetMode::SameStep,
     ))
     .await
     .unwrap();
-    // 4 envs, 2 groups, 2 servers: envs 0 and 3 live on a, envs 1 and 2 on b.
+    (a, b, pool)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn restarted_server_cuts_its_episodes_and_the_pool_goes_on() {
+    init_tracing();
+    let (_a, mut b, mut pool) = pool_over_two_servers().await;
     let mut sampler = ActionSampler::new(&pool.spec().action_space, 3).unwrap();
     pool.reset_all().await.unwrap();
     let mut last = Vec::new();
@@ -170,4 +176,38 @@ async fn closing_after_a_restart_is_no_error() {
     pool.close()
         .await
         .expect("a handle the server forgot is closed");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_seeded_reset_that_loses_its_server_begins_the_episodes_it_asked_for() {
+    // An evaluation resets to its first episodes before each attempt. If the server is lost
+    // during that reset, the rebuilt envs must begin those same episodes, not new ones.
+    init_tracing();
+    let (_a, mut b, mut pool) = pool_over_two_servers().await;
+    let mut sampler = ActionSampler::new(&pool.spec().action_space, 3).unwrap();
+    let first: Vec<Tensor> = pool
+        .reset_all()
+        .await
+        .unwrap()
+        .iter()
+        .map(|r| r.obs.get(FLAT_FIELD).unwrap().clone())
+        .collect();
+    for _ in 0..3 {
+        step_all(&mut pool, &mut sampler).await;
+    }
+    b.restart().await.expect("server restarts");
+    for (g, first) in first.iter().enumerate() {
+        let again = pool.reset_to_first_episodes(g).await.unwrap();
+        let again = again.obs.get(FLAT_FIELD).unwrap();
+        for i in 0..2 {
+            assert_eq!(
+                row(again, i),
+                row(first, i),
+                "group {g}, row {i}: the episode begins as it first did"
+            );
+        }
+    }
+    // b held one env of each group, so each group's reset rebuilt it.
+    assert_eq!(pool.stats().rebuilds, 2);
+    pool.close().await.unwrap();
 }

@@ -99,9 +99,9 @@ impl Evaluator {
     }
 
     /// One attempt; `None` when an env server was lost during it (an episode it scores was
-    /// cut, or its envs were rebuilt during the reset, which reseeds them differently).
+    /// cut). A server lost during the reset is no loss: the pool rebuilds its envs with the
+    /// seeds the reset asked for, so they begin the same episodes.
     async fn run_once(&mut self, model: &Model) -> anyhow::Result<Option<EvalReport>> {
-        let rebuilds = self.pool.stats().rebuilds;
         // Same seeds every time: the tasks, goals and starts of an eval are those of the
         // last one, so successive evals compare like with like and every task keeps its share
         // (unseeded resets would continue each env's task cycle from wherever it stopped).
@@ -120,9 +120,6 @@ impl Evaluator {
             if tally.observe(&step) == Scoring::Void {
                 return Ok(None);
             }
-        }
-        if self.pool.stats().rebuilds != rebuilds {
-            return Ok(None);
         }
         Ok(Some(tally.report(&self.split.name, env_id)))
     }

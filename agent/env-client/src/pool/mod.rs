@@ -9,7 +9,9 @@
 //! whichever server it lands on, so results do not depend on the server count.
 //! When a server restarts mid-run, the affected envs are rebuilt and their cut
 //! episodes reported as truncated (`cut` set, the last observation as final
-//! observation), never glued to the new episodes.
+//! observation), never glued to the new episodes. Envs rebuilt while stepping or
+//! during an unseeded reset are reseeded with a shifted base; a seeded reset that
+//! loses its server is rebuilt with the seeds it asked for.
 //!
 //! A server target that resolves to several addresses (a scaled Docker service, a
 //! Kubernetes headless Service) counts as one server per address; a lost server's
@@ -165,6 +167,9 @@ struct Group {
     shards: Vec<Shard>,
     state: GroupState,
     seeded: bool,
+    /// Per shard, the seeds of the reset in flight (empty: an unseeded reset). A shard
+    /// lost during that reset is rebuilt with them, so the episodes begin as asked.
+    reset_seeds: Vec<Vec<i64>>,
 }
 
 /// Counters of the pool's fault handling.
@@ -246,6 +251,7 @@ impl EnvPool {
                 shards,
                 state: GroupState::NeedsReset,
                 seeded: false,
+                reset_seeds: Vec::new(),
             });
         }
         let mut spec = spec.expect("at least one shard");
@@ -384,6 +390,7 @@ impl EnvPool {
         for (shard, seeds) in group.shards.iter_mut().zip(&seeds) {
             shard.send_reset(seeds);
         }
+        group.reset_seeds = seeds;
         group.seeded = true;
         group.state = GroupState::Resetting;
         Ok(())
@@ -393,13 +400,20 @@ impl EnvPool {
         let mut parts = Vec::new();
         let mut first_err = None;
         let shards = std::mem::take(&mut self.groups[g].shards);
+        let requested = std::mem::take(&mut self.groups[g].reset_seeds);
         let mut load = self.load(&shards);
         let mut kept = Vec::with_capacity(shards.len());
-        for mut shard in shards {
+        for (j, mut shard) in shards.into_iter().enumerate() {
             match shard.recv_reset().await {
                 Ok(r) => parts.push(r),
                 Err(e) if e.is_connection_loss() => {
-                    let seeds = self.seeds(shard.envs.clone(), shard.restarts + 1);
+                    // A seeded reset is rebuilt with its own seeds (an evaluation's reset
+                    // to its first episodes begins them all the same); an unseeded one
+                    // with shifted seeds, since the lost envs' generators are gone.
+                    let seeds = match requested.get(j) {
+                        Some(asked) if !asked.is_empty() => asked.clone(),
+                        _ => self.seeds(shard.envs.clone(), shard.restarts + 1),
+                    };
                     match shard
                         .recover(&self.args, &self.spec, &seeds, &e, &mut load)
                         .await
