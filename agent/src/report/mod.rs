@@ -106,6 +106,9 @@ fn file_name(p: &Path) -> String {
         .unwrap_or_default()
 }
 
+/// Evaluations averaged for the summary's steadier figures.
+const RECENT_EVALS: usize = 3;
+
 fn markdown_text(runs: &[RunData], task_figures: &[PathBuf]) -> String {
     let mut md = String::new();
     let names: Vec<&str> = runs.iter().map(|r| r.name.as_str()).collect();
@@ -148,6 +151,32 @@ fn markdown_text(runs: &[RunData], task_figures: &[PathBuf]) -> String {
          that span, evaluation included. Final values come from each split's last evaluation \
          record.\n"
     );
+    let _ = writeln!(
+        md,
+        "Steadier figures: the mean of each split's last {RECENT_EVALS} evaluations (fewer \
+         when fewer were made; the count is in brackets).\n"
+    );
+    let _ = writeln!(
+        md,
+        "| run | train success | test success | train first-trial | test first-trial |\n\
+         |---|---:|---:|---:|---:|"
+    );
+    for r in runs {
+        let mean = |split: &str, first_trial: bool| {
+            r.recent_mean(split, RECENT_EVALS, first_trial)
+                .map_or_else(|| "–".into(), |(v, n)| format!("{v:.3} ({n})"))
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} |",
+            r.name,
+            mean("train", false),
+            mean("test", false),
+            mean("train", true),
+            mean("test", true),
+        );
+    }
+    let _ = writeln!(md);
     let _ = writeln!(md, "## Learning curves\n\n![learning curves](curves.png)\n");
     let mut benchmarks: Vec<&str> = runs.iter().filter_map(RunData::benchmark).collect();
     benchmarks.dedup();

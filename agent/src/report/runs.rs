@@ -64,6 +64,31 @@ impl RunData {
         self.curves.keys().map(String::as_str)
     }
 
+    /// Mean success (or first-trial success) over a split's last `k` evaluations, with the
+    /// number of evaluations it averages. Deterministic evaluations of one run swing by
+    /// ±0.2–0.4 between checkpoints (LEARNING.md), so a single last point is a poor summary.
+    pub fn recent_mean(&self, split: &str, k: usize, first_trial: bool) -> Option<(f64, usize)> {
+        let points = self.curves.get(split)?;
+        let values: Vec<f64> = points
+            .iter()
+            .rev()
+            .take(k)
+            .filter_map(|p| {
+                if first_trial {
+                    p.first_trial
+                } else {
+                    Some(p.success)
+                }
+            })
+            .collect();
+        (!values.is_empty()).then(|| {
+            (
+                values.iter().sum::<f64>() / values.len() as f64,
+                values.len(),
+            )
+        })
+    }
+
     /// The final evaluations in reading order: train, test, then any other split.
     pub fn final_evals(&self) -> Vec<(&str, &FinalEval)> {
         let rank = |s: &str| match s {
@@ -249,6 +274,11 @@ mod tests {
         assert_eq!((fin.step, fin.success, fin.first_trial), (400, 0.75, None));
         assert_eq!(fin.per_task.len(), 2);
         assert_eq!(run.curves["train"][0].first_trial, Some(0.5));
+        assert_eq!(run.recent_mean("train", 3, false), Some((0.5, 2)));
+        assert_eq!(run.recent_mean("train", 1, false), Some((0.75, 1)));
+        // Only the points that carry a first-trial figure are averaged.
+        assert_eq!(run.recent_mean("train", 3, true), Some((0.5, 1)));
+        assert_eq!(run.recent_mean("test", 3, false), None);
         assert_eq!(run.benchmark(), Some("ML10"));
         assert_eq!(
             run.test_split.as_deref(),
