@@ -61,6 +61,7 @@ def test_registered_ids() -> None:
         "trial_len": 200,
         "task_order": "random",
         "instruction_goal": "real",
+        "goal_encoding": "raw",
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):
@@ -110,6 +111,38 @@ def test_reflected_instruction_goal_names_a_wrong_goal_in_the_goal_range() -> No
         env.close()
     with pytest.raises(ValueError, match="instruction_goal"):
         make("million/ML1-train", instruction_goal="swapped")
+
+
+@pytest.mark.parametrize("instruction_goal", ["real", "reflected"])
+def test_range_goal_encoding_scales_the_named_goal_to_the_unit_box(instruction_goal: str) -> None:
+    """`goal_encoding="range"` writes the goal that goal_pos names mapped affinely from the
+    task's goal range to [-1, 1] per axis: the ends of the range land on -1 and 1, the
+    encoding is invertible, and info's `goal` stays the real goal in metres."""
+    env = make("million/ML1-train", goal_encoding="range", instruction_goal=instruction_goal)
+    try:
+        encoded = []
+        for seed in range(6):
+            obs, info = env.reset(seed=seed)
+            goal = real_goal(env)
+            np.testing.assert_array_equal(info["goal"], goal)
+            low, high = env.current_task.goal_range()
+            _obs, _info, words = skip_instruction(env, obs, info)
+            vector = next(v for t, v in words if t == "goal_pos")
+            assert not vector[3:].any()
+            named = goal if instruction_goal == "real" else low + high - goal
+            # Decoding the entries gives back the named goal in metres.
+            decoded = low + (vector[:3].astype(np.float64) + 1.0) * (high - low) / 2.0
+            np.testing.assert_allclose(decoded, named, atol=1e-6)
+            assert np.all(np.abs(vector[:3]) <= 1.0 + 1e-6)
+            encoded.append(vector[:3])
+        # Reach's goals fill the box, so the scaled entries spread over most of [-1, 1]
+        # (in metres the x and y entries would span at most 0.2 and 0.1).
+        spread = np.ptp(np.stack(encoded), axis=0)
+        assert np.all(spread > 0.5), spread
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="goal_encoding"):
+        make("million/ML1-train", goal_encoding="metres")
 
 
 def test_goal_is_kept_across_trials(reach_env: MillionEnv) -> None:

@@ -21,6 +21,7 @@ def make_metaworld_million(
     trial_len: int = 200,
     task_order: str = "random",
     instruction_goal: str = "real",
+    goal_encoding: str = "raw",
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
     sentences = metaworld_instructions(instruction_set)
@@ -35,6 +36,7 @@ def make_metaworld_million(
             trials=trials,
             trial_len=trial_len,
             instruction_goal=instruction_goal,
+            goal_encoding=goal_encoding,
         )
     except Exception:
         source.close()
@@ -52,6 +54,7 @@ def make_point_goal_million(
     trial_len: int = 25,
     task_order: str = "random",
     instruction_goal: str = "real",
+    goal_encoding: str = "raw",
 ) -> MillionEnv:
     """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
     if isinstance(num_goals, bool) or not isinstance(num_goals, int):
@@ -67,4 +70,5 @@ def make_point_goal_million(
         trials=trials,
         trial_len=trial_len,
         instruction_goal=instruction_goal,
+        goal_encoding=goal_encoding,
     )

@@ -35,6 +35,12 @@ TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
 #: the centre of the task's goal range, a wrong goal about as far from the centre (on reach
 #: ~19 cm RMS from the real one; ~1 % of goals lie so near the centre that it is within 5 cm).
 INSTRUCTION_GOALS: tuple[str, ...] = ("real", "reflected")
+#: How `goal_pos` writes the goal into the word vector's first three entries: "raw" metres
+#: (the original code), or "range": each coordinate mapped affinely from the task's goal range
+#: to [-1, 1] (a coordinate whose range is a point maps to 0). Reach's goals span only
+#: 0.1 to 0.25 m per axis, so in metres they differ from each other by less than a GloVe entry's
+#: typical size; "range" gives them the scale of the words around them (LEARNING.md, rung 2).
+GOAL_ENCODINGS: tuple[str, ...] = ("raw", "range")
 # Second entropy word of the sentence generator's seed (any constant != task streams).
 _SENTENCE_STREAM = 0x5E47E4CE
 PHASE_INSTRUCTION = "instruction"
@@ -106,12 +112,17 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         trials: int = 3,
         trial_len: int = 200,
         instruction_goal: str = "real",
+        goal_encoding: str = "raw",
     ) -> None:
         if time_obs not in TIME_OBS_MODES:
             raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
         if instruction_goal not in INSTRUCTION_GOALS:
             raise ValueError(
                 f"instruction_goal must be one of {INSTRUCTION_GOALS}, got {instruction_goal!r}"
+            )
+        if goal_encoding not in GOAL_ENCODINGS:
+            raise ValueError(
+                f"goal_encoding must be one of {GOAL_ENCODINGS}, got {goal_encoding!r}"
             )
         for name, value in (
             ("action_repeat", action_repeat),
@@ -136,6 +147,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._encoder = InstructionEncoder()
         self._instructions = instructions
         self._reflect_goal = instruction_goal == "reflected"
+        self._goal_in_range = goal_encoding == "range"
         self._episode_time = time_obs == "episode"
         self._action_repeat = action_repeat
         self._trials = trials
@@ -266,12 +278,19 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._phase = PHASE_INSTRUCTION
 
     def _named_goal(self) -> npt.NDArray[np.float64]:
-        """The goal that `goal_pos` encodes (`instruction_goal`); info's `goal` stays real."""
+        """What `goal_pos` encodes: the goal `instruction_goal` names, written as
+        `goal_encoding` says. Info's `goal` stays the real goal in metres."""
         assert self._task is not None
         goal = self._task.goal()
+        if not (self._reflect_goal or self._goal_in_range):
+            return goal
+        low, high = self._task.goal_range()
         if self._reflect_goal:
-            low, high = self._task.goal_range()
             goal = low + high - goal
+        if self._goal_in_range:
+            half = (high - low) / 2.0
+            safe_half = np.where(half > 0.0, half, 1.0)
+            goal = np.where(half > 0.0, (goal - (low + half)) / safe_half, 0.0)
         return goal
 
     def _next_sentence(self) -> str:

@@ -28,6 +28,7 @@ _MEANINGS = {
     "task": "Meta-World task class",
     "task_order": "'random'|'cycle' (cycle: task (seed + k) mod n at the k-th episode)",
     "instruction_goal": "'real'|'reflected' (diagnostic: goal_pos names a wrong goal)",
+    "goal_encoding": "'raw'|'range' (goal_pos in metres, or scaled from the goal range to [-1, 1])",
 }
 
 
