@@ -145,6 +145,23 @@ def test_range_goal_encoding_scales_the_named_goal_to_the_unit_box(instruction_g
         make("million/ML1-train", goal_encoding="metres")
 
 
+def test_range_goal_encoding_maps_a_point_axis_to_zero_and_clips() -> None:
+    """hand-insert's goal range is a point in z (±1e-4 m): that axis is written as 0, not as
+    jitter blown up to [-1, 1], and no entry leaves [-1, 1]."""
+    env = make("million/ML1-train", task="hand-insert-v3", goal_encoding="range")
+    try:
+        for seed in range(3):
+            obs, info = env.reset(seed=seed)
+            low, high = env.current_task.goal_range()
+            assert high[2] - low[2] < 0.01, "the z range is a point"
+            _obs, _info, words = skip_instruction(env, obs, info)
+            vector = next(v for t, v in words if t == "goal_pos")
+            assert vector[2] == 0.0
+            assert np.all(np.abs(vector[:3]) <= 1.0)
+    finally:
+        env.close()
+
+
 def test_goal_is_kept_across_trials(reach_env: MillionEnv) -> None:
     reach_env.reset(seed=5)
     goal = real_goal(reach_env)

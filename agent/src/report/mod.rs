@@ -153,8 +153,8 @@ fn markdown_text(runs: &[RunData], task_figures: &[PathBuf]) -> String {
     );
     let _ = writeln!(
         md,
-        "Steadier figures: the mean of each split's last {RECENT_EVALS} evaluations (fewer \
-         when fewer were made; the count is in brackets).\n"
+        "Steadier figures: the mean of each split's last {RECENT_EVALS} evaluations that carry \
+         the figure (the count is in brackets; fewer when fewer were made or recorded it).\n"
     );
     let _ = writeln!(
         md,

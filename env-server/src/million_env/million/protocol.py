@@ -37,10 +37,13 @@ TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
 INSTRUCTION_GOALS: tuple[str, ...] = ("real", "reflected")
 #: How `goal_pos` writes the goal into the word vector's first three entries: "raw" metres
 #: (the original code), or "range": each coordinate mapped affinely from the task's goal range
-#: to [-1, 1] (a coordinate whose range is a point maps to 0). Reach's goals span only
-#: 0.1 to 0.25 m per axis, so in metres they differ from each other by less than a GloVe entry's
-#: typical size; "range" gives them the scale of the words around them (LEARNING.md, rung 2).
+#: to [-1, 1] and clipped there. Reach's goals span only 0.1 to 0.25 m per axis (std 0.03 to
+#: 0.07), against a GloVe entry's std of 0.64; "range" gives them the scale of the words
+#: around them (LEARNING.md, rung 2). Made for reach-like tasks, whose goals are drawn from
+#: the range; an axis narrower than `_POINT_HALF_WIDTH` each side counts as a point and maps
+#: to 0, so sub-centimetre jitter (hand-insert's z, ±1e-4 m) is not blown up to full scale.
 GOAL_ENCODINGS: tuple[str, ...] = ("raw", "range")
+_POINT_HALF_WIDTH = 0.005
 # Second entropy word of the sentence generator's seed (any constant != task streams).
 _SENTENCE_STREAM = 0x5E47E4CE
 PHASE_INSTRUCTION = "instruction"
@@ -289,8 +292,9 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             goal = low + high - goal
         if self._goal_in_range:
             half = (high - low) / 2.0
-            safe_half = np.where(half > 0.0, half, 1.0)
-            goal = np.where(half > 0.0, (goal - (low + half)) / safe_half, 0.0)
+            wide = half >= _POINT_HALF_WIDTH
+            scaled = (goal - (low + half)) / np.where(wide, half, 1.0)
+            goal = np.where(wide, np.clip(scaled, -1.0, 1.0), 0.0)
         return goal
 
     def _next_sentence(self) -> str:
