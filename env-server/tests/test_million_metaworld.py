@@ -39,6 +39,14 @@ def skip_instruction(env: MillionEnv, obs: dict[str, Any], info: dict[str, Any])
     return obs, info, words
 
 
+def goal_word_of_episode(env: MillionEnv, seed: int) -> tuple[dict[str, Any], np.ndarray]:
+    """Resets with `seed` and reads the first instruction: the reset's info and the
+    `goal_pos` word's vector."""
+    obs, info = env.reset(seed=seed)
+    _obs, _info, words = skip_instruction(env, obs, info)
+    return info, next(v for t, v in words if t == "goal_pos")
+
+
 @pytest.fixture(scope="module")
 def reach_env() -> MillionEnv:
     return make("million/ML1-train")
@@ -97,12 +105,11 @@ def test_reflected_instruction_goal_names_a_wrong_goal_in_the_goal_range() -> No
     env = make("million/ML1-train", instruction_goal="reflected")
     try:
         for seed in range(3):
-            obs, info = env.reset(seed=seed)
+            info, vector = goal_word_of_episode(env, seed)
             goal = real_goal(env)
             np.testing.assert_array_equal(info["goal"], goal)
             low, high = env.current_task.goal_range()
-            _obs, _info, words = skip_instruction(env, obs, info)
-            named = next(v[:3] for t, v in words if t == "goal_pos")
+            named = vector[:3]
             np.testing.assert_allclose(named, (low + high - goal).astype(np.float32), atol=1e-6)
             assert np.all(named >= low - 1e-6) and np.all(named <= high + 1e-6)
             # Farther from the real goal than reach's 5 cm success radius.
@@ -122,12 +129,10 @@ def test_range_goal_encoding_scales_the_named_goal_to_the_unit_box(instruction_g
     try:
         encoded = []
         for seed in range(6):
-            obs, info = env.reset(seed=seed)
+            info, vector = goal_word_of_episode(env, seed)
             goal = real_goal(env)
             np.testing.assert_array_equal(info["goal"], goal)
             low, high = env.current_task.goal_range()
-            _obs, _info, words = skip_instruction(env, obs, info)
-            vector = next(v for t, v in words if t == "goal_pos")
             assert not vector[3:].any()
             named = goal if instruction_goal == "real" else low + high - goal
             # Decoding the entries gives back the named goal in metres.
@@ -151,11 +156,9 @@ def test_range_goal_encoding_maps_a_point_axis_to_zero_and_clips() -> None:
     env = make("million/ML1-train", task="hand-insert-v3", goal_encoding="range")
     try:
         for seed in range(3):
-            obs, info = env.reset(seed=seed)
+            _info, vector = goal_word_of_episode(env, seed)
             low, high = env.current_task.goal_range()
             assert high[2] - low[2] < 0.01, "the z range is a point"
-            _obs, _info, words = skip_instruction(env, obs, info)
-            vector = next(v for t, v in words if t == "goal_pos")
             assert vector[2] == 0.0
             assert np.all(np.abs(vector[:3]) <= 1.0)
     finally:

@@ -167,9 +167,9 @@ struct Group {
     shards: Vec<Shard>,
     state: GroupState,
     seeded: bool,
-    /// Per shard, the seeds of the reset in flight (empty: an unseeded reset). A shard
-    /// lost during that reset is rebuilt with them, so the episodes begin as asked.
-    reset_seeds: Vec<Vec<i64>>,
+    /// Whether the reset in flight is seeded (begins the first episodes). A shard lost
+    /// during it is rebuilt with those seeds, so the episodes begin as asked.
+    seeded_reset_in_flight: bool,
 }
 
 /// Counters of the pool's fault handling.
@@ -251,7 +251,7 @@ impl EnvPool {
                 shards,
                 state: GroupState::NeedsReset,
                 seeded: false,
-                reset_seeds: Vec::new(),
+                seeded_reset_in_flight: false,
             });
         }
         let mut spec = spec.expect("at least one shard");
@@ -390,7 +390,7 @@ impl EnvPool {
         for (shard, seeds) in group.shards.iter_mut().zip(&seeds) {
             shard.send_reset(seeds);
         }
-        group.reset_seeds = seeds;
+        group.seeded_reset_in_flight = !seeded;
         group.seeded = true;
         group.state = GroupState::Resetting;
         Ok(())
@@ -400,20 +400,18 @@ impl EnvPool {
         let mut parts = Vec::new();
         let mut first_err = None;
         let shards = std::mem::take(&mut self.groups[g].shards);
-        let requested = std::mem::take(&mut self.groups[g].reset_seeds);
+        let seeded_reset = self.groups[g].seeded_reset_in_flight;
         let mut load = self.load(&shards);
         let mut kept = Vec::with_capacity(shards.len());
-        for (j, mut shard) in shards.into_iter().enumerate() {
+        for mut shard in shards {
             match shard.recv_reset().await {
                 Ok(r) => parts.push(r),
                 Err(e) if e.is_connection_loss() => {
                     // A seeded reset is rebuilt with its own seeds (an evaluation's reset
                     // to its first episodes begins them all the same); an unseeded one
                     // with shifted seeds, since the lost envs' generators are gone.
-                    let seeds = match requested.get(j) {
-                        Some(asked) if !asked.is_empty() => asked.clone(),
-                        _ => self.seeds(shard.envs.clone(), shard.restarts + 1),
-                    };
+                    let generation = if seeded_reset { 0 } else { shard.restarts + 1 };
+                    let seeds = self.seeds(shard.envs.clone(), generation);
                     match shard
                         .recover(&self.args, &self.spec, &seeds, &e, &mut load)
                         .await
