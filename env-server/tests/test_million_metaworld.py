@@ -70,6 +70,7 @@ def test_registered_ids() -> None:
         "task_order": "random",
         "instruction_goal": "real",
         "goal_encoding": "raw",
+        "goal_in_state": False,
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):
@@ -302,3 +303,34 @@ def test_ml45_ids_serve_their_splits() -> None:
         assert ALL_TASK_NAMES[int(obs["task_id"])] == info["task_name"]
         obs, info, _ = skip_instruction(env, obs, info)
         assert obs["state"].shape == (39,) and obs["state"].any()
+
+
+def test_goal_in_state_shows_the_real_goal_in_trials_only() -> None:
+    """The diagnostic `goal_in_state=True` writes the real goal into the trial state's last
+    three entries (ML1 hides it there); instruction phases keep an all-zero state, and
+    the default keeps the goal hidden."""
+    shown = make("million/ML1-train", goal_in_state=True)
+    hidden = make("million/ML1-train")
+    try:
+        for env in (shown, hidden):
+            obs, info = env.reset(seed=4)
+            trial_states = []
+            done = False
+            while not done:
+                if info["phase"] == "trial":
+                    trial_states.append(obs["state"])
+                else:
+                    assert not obs["state"].any()
+                obs, _r, done, _tr, info = env.step(ZERO)
+            goal_slots = np.stack(trial_states)[:, -3:]
+            if env is shown:
+                np.testing.assert_array_equal(
+                    goal_slots, np.tile(info["goal"], (len(goal_slots), 1))
+                )
+            else:
+                assert not goal_slots.any()
+    finally:
+        shown.close()
+        hidden.close()
+    with pytest.raises(ValueError, match="goal_in_state"):
+        make("million/ML1-train", goal_in_state="yes")

@@ -2,7 +2,7 @@
 
 Env ids (all take the protocol kwargs instruction_set='train'|'heldout',
 instructions, time_obs='trial'|'episode', action_repeat, trials, trial_len,
-instruction_goal='real'|'reflected', goal_encoding='raw'|'range'):
+instruction_goal='real'|'reflected', goal_encoding='raw'|'range', goal_in_state):
 
 - ``million/ML1-{train,test}`` (kwarg ``task``, default 'reach-v3'),
   ``million/ML10-{train,test}``, ``million/ML45-{train,test}``: Meta-World v3.
@@ -10,9 +10,11 @@ instruction_goal='real'|'reflected', goal_encoding='raw'|'range'):
   goal named only in the instruction; the fast learning test.
 
 Observation (Dict, this key order): ``state`` float64 (39; Meta-World's values,
-zeros in instruction phases; PointGoal: x, y, then zeros), ``word`` float32 (50;
-GloVe 6B vector of the current word, ``goal_pos`` = [goal_x, goal_y, goal_z, 0...]
-(metres, or with ``goal_encoding='range'`` scaled from the task's goal range to [-1, 1]),
+zeros in instruction phases; PointGoal: x, y, then zeros; the diagnostic
+``goal_in_state=True`` writes the real goal into its last three entries in trials),
+``word`` float32 (50; GloVe 6B vector of the current word,
+``goal_pos`` = [goal_x, goal_y, goal_z, 0...] (metres, or with ``goal_encoding='range'``
+scaled from the task's goal range to [-1, 1]),
 zeros in trials), ``time`` float32 (1), ``phase`` float32 (1; 1 = instruction),
 ``task_id`` Discrete (index in `million_env.metaworld_tasks.ALL_TASK_NAMES`;
 PointGoal: always 0 of Discrete(1)), ``prev_reward`` float32 (1; only set without

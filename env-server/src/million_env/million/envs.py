@@ -22,6 +22,7 @@ def make_metaworld_million(
     task_order: str = "random",
     instruction_goal: str = "real",
     goal_encoding: str = "raw",
+    goal_in_state: bool = False,
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
     sentences = metaworld_instructions(instruction_set)
@@ -37,6 +38,7 @@ def make_metaworld_million(
             trial_len=trial_len,
             instruction_goal=instruction_goal,
             goal_encoding=goal_encoding,
+            goal_in_state=goal_in_state,
         )
     except Exception:
         source.close()
@@ -55,6 +57,7 @@ def make_point_goal_million(
     task_order: str = "random",
     instruction_goal: str = "real",
     goal_encoding: str = "raw",
+    goal_in_state: bool = False,
 ) -> MillionEnv:
     """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
     if isinstance(num_goals, bool) or not isinstance(num_goals, int):
@@ -71,4 +74,5 @@ def make_point_goal_million(
         trial_len=trial_len,
         instruction_goal=instruction_goal,
         goal_encoding=goal_encoding,
+        goal_in_state=goal_in_state,
     )

@@ -44,6 +44,9 @@ INSTRUCTION_GOALS: tuple[str, ...] = ("real", "reflected")
 #: to 0, so sub-centimetre jitter (hand-insert's z, ±1e-4 m) is not blown up to full scale.
 GOAL_ENCODINGS: tuple[str, ...] = ("raw", "range")
 _POINT_HALF_WIDTH = 0.005
+#: Where `goal_in_state` writes the real goal: the state's last three entries, where a
+#: goal-observable Meta-World v3 task (MT1) shows it and where ML1/ML10 write zeros.
+GOAL_STATE_SLICE = slice(STATE_DIM - 3, STATE_DIM)
 # Second entropy word of the sentence generator's seed (any constant != task streams).
 _SENTENCE_STREAM = 0x5E47E4CE
 PHASE_INSTRUCTION = "instruction"
@@ -116,6 +119,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         trial_len: int = 200,
         instruction_goal: str = "real",
         goal_encoding: str = "raw",
+        goal_in_state: bool = False,
     ) -> None:
         if time_obs not in TIME_OBS_MODES:
             raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
@@ -134,8 +138,9 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         ):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if not isinstance(instructions, bool):
-            raise ValueError(f"instructions must be a bool, got {instructions!r}")
+        for name, flag in (("instructions", instructions), ("goal_in_state", goal_in_state)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"{name} must be a bool, got {flag!r}")
         if trial_len > source.max_steps_per_reset:
             raise ValueError(
                 f"trial_len {trial_len} exceeds the {source.max_steps_per_reset} env steps "
@@ -151,6 +156,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._instructions = instructions
         self._reflect_goal = instruction_goal == "reflected"
         self._goal_in_range = goal_encoding == "range"
+        self._goal_in_state = goal_in_state
         self._episode_time = time_obs == "episode"
         self._action_repeat = action_repeat
         self._trials = trials
@@ -346,6 +352,9 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             phase = 1.0
         else:
             state = np.array(self._state, dtype=np.float64)
+            if self._goal_in_state:
+                # Diagnostic: the goal in plain view, as MT1 shows it (LEARNING.md, rung 2).
+                state[GOAL_STATE_SLICE] = self._task.goal()
             word = np.zeros(EMBED_DIM, dtype=np.float32)
             phase = 0.0
         prev_reward = 0.0 if self._instructions else self._prev_reward

@@ -29,6 +29,7 @@ _MEANINGS = {
     "task_order": "'random'|'cycle' (cycle: task (seed + k) mod n at the k-th episode)",
     "instruction_goal": "'real'|'reflected' (diagnostic: goal_pos names a wrong goal)",
     "goal_encoding": "'raw'|'range' (goal_pos in metres, or scaled from the goal range to [-1, 1])",
+    "goal_in_state": "True = diagnostic: the real goal in the trial state's last 3 entries",
 }
 
 
