@@ -71,6 +71,7 @@ def test_registered_ids() -> None:
         "instruction_goal": "real",
         "goal_encoding": "raw",
         "goal_in_state": False,
+        "end_on_success": False,
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):
@@ -232,6 +233,50 @@ def test_scripted_reach_succeeds_and_starts_the_next_trial_directly(reach_env: M
     # After a success the next trial starts at once, from a reset MDP.
     assert ends[0][1:] == ("trial", 0) and ends[1][1:] == ("trial", 0)
     assert info["trial_successes"] == 3
+
+
+def scripted_reach_episode(env: MillionEnv, seed: int) -> list[tuple[int, bool, float]]:
+    """Meta-World's reach policy for one episode: (agent steps, success, return) per trial."""
+    policy = SawyerReachV3Policy()
+    obs, info = env.reset(seed=seed)
+    goal = np.asarray(info["goal"])
+    trials, steps, ret, done = [], 0, 0.0, False
+    while not done:
+        if info["phase"] == "trial":
+            state = obs["state"].copy()
+            state[36:39] = goal
+            action = policy.get_action(state)
+            steps += 1
+        else:
+            action = ZERO
+        obs, reward, done, _tr, info = env.step(action)
+        ret += reward
+        if info["trial_end"]:
+            trials.append((steps, bool(info["success"]), ret))
+            steps, ret = 0, 0.0
+    return trials
+
+
+@pytest.mark.filterwarnings("ignore:Constant.s. may be too high")
+def test_trials_run_their_full_length_and_keep_paying_after_a_success() -> None:
+    """As the original code: a trial runs its 200 env steps (100 agent steps) whatever
+    happens and succeeds if the success test held at any step, so staying at the goal
+    keeps earning reward; `end_on_success=True` ends it at the succeeding step instead."""
+    full, ending = make("million/ML1-train"), make("million/ML1-train", end_on_success=True)
+    try:
+        full_trials = scripted_reach_episode(full, seed=8)
+        ending_trials = scripted_reach_episode(ending, seed=8)
+    finally:
+        full.close()
+        ending.close()
+    assert [t[:2] for t in full_trials] == [(100, True)] * 3
+    assert [t[1] for t in ending_trials] == [True] * 3
+    assert all(steps < 50 for steps, _s, _r in ending_trials)
+    # The same first steps, then the full trial's reward for holding the goal on top.
+    for (_n, _s, whole), (_m, _t, cut) in zip(full_trials, ending_trials, strict=True):
+        assert whole > cut + 500
+    with pytest.raises(ValueError, match="end_on_success"):
+        make("million/ML1-train", end_on_success=1)
 
 
 def test_seed_determines_task_goal_and_sentences() -> None:

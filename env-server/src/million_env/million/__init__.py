@@ -2,7 +2,8 @@
 
 Env ids (all take the protocol kwargs instruction_set='train'|'heldout',
 instructions, time_obs='trial'|'episode', action_repeat, trials, trial_len,
-instruction_goal='real'|'reflected', goal_encoding='raw'|'range', goal_in_state):
+instruction_goal='real'|'reflected', goal_encoding='raw'|'range', goal_in_state,
+end_on_success: False for Meta-World, trials run their full length; True for PointGoal):
 
 - ``million/ML1-{train,test}`` (kwarg ``task``, default 'reach-v3'),
   ``million/ML10-{train,test}``, ``million/ML45-{train,test}``: Meta-World v3.

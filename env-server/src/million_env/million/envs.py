@@ -23,8 +23,10 @@ def make_metaworld_million(
     instruction_goal: str = "real",
     goal_encoding: str = "raw",
     goal_in_state: bool = False,
+    end_on_success: bool = False,
 ) -> MillionEnv:
-    """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`)."""
+    """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`); trials run
+    their full length (the original code; `million_env.million.protocol` says why)."""
     sentences = metaworld_instructions(instruction_set)
     source = MetaWorldSource(benchmark, split, task=task, task_order=task_order)
     try:
@@ -39,6 +41,7 @@ def make_metaworld_million(
             instruction_goal=instruction_goal,
             goal_encoding=goal_encoding,
             goal_in_state=goal_in_state,
+            end_on_success=end_on_success,
         )
     except Exception:
         source.close()
@@ -58,8 +61,10 @@ def make_point_goal_million(
     instruction_goal: str = "real",
     goal_encoding: str = "raw",
     goal_in_state: bool = False,
+    end_on_success: bool = True,
 ) -> MillionEnv:
-    """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals."""
+    """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals; a trial
+    ends at its success (its potential-based reward is made for that)."""
     if isinstance(num_goals, bool) or not isinstance(num_goals, int):
         raise ValueError(f"num_goals must be an integer, got {num_goals!r}")
     sentences = point_goal_instructions(instruction_set, num_goals)
@@ -75,4 +80,5 @@ def make_point_goal_million(
         instruction_goal=instruction_goal,
         goal_encoding=goal_encoding,
         goal_in_state=goal_in_state,
+        end_on_success=end_on_success,
     )

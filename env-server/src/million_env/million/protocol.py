@@ -2,8 +2,9 @@
 
 An episode: sample a task and one of its sentences; an instruction phase feeds the
 sentence one word per step (action ignored, reward 0); then a trial runs the MDP
-with action repeat until success or `trial_len` env steps. A failed trial is
-followed by a new instruction phase with another sentence of the same task; a
+with action repeat for `trial_len` env steps, and succeeds if the task's success test
+held at any of them (`end_on_success=True`: the trial ends at that step). A failed
+trial is followed by a new instruction phase with another sentence of the same task; a
 successful one directly by the next trial. After `trials` trials the episode is
 `terminated`; trial boundaries are not terminal. The MDP is reset between trials
 with the same task and goal.
@@ -44,6 +45,14 @@ INSTRUCTION_GOALS: tuple[str, ...] = ("real", "reflected")
 #: to 0, so sub-centimetre jitter (hand-insert's z, ±1e-4 m) is not blown up to full scale.
 GOAL_ENCODINGS: tuple[str, ...] = ("raw", "range")
 _POINT_HALF_WIDTH = 0.005
+#: Whether a trial ends at the env step that succeeds. The original code runs every trial
+#: for its full length and records whether it succeeded at any step; ending at success
+#: instead makes Meta-World's dense rewards pay for *not* succeeding: a scripted reach
+#: policy that hovers 12 cm from the goal earns 5,129 per episode (discounted at 0.99:
+#: 1,489) against 948 (620) for one that succeeds at once, since each success cuts its
+#: trial's reward short (LEARNING.md, rung 2). PointGoal's potential-based reward is built
+#: for ending at success, so its ids keep that.
+END_ON_SUCCESS_DEFAULT = False
 #: Where `goal_in_state` writes the real goal: the state's last three entries, where a
 #: goal-observable Meta-World v3 task (MT1) shows it and where ML1/ML10 write zeros.
 GOAL_STATE_SLICE = slice(STATE_DIM - 3, STATE_DIM)
@@ -54,7 +63,12 @@ PHASE_TRIAL = "trial"
 
 
 INFO_FIELDS: tuple[InfoField, ...] = (
-    InfoField("success", "bool", (), "true at the step that ended a trial by success"),
+    InfoField(
+        "success",
+        "bool",
+        (),
+        "true at the step that ended a successful trial (its success test held at some step)",
+    ),
     InfoField("trial_end", "bool", (), "true at the step that ended a trial"),
     InfoField(
         "trial",
@@ -120,6 +134,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         instruction_goal: str = "real",
         goal_encoding: str = "raw",
         goal_in_state: bool = False,
+        end_on_success: bool = END_ON_SUCCESS_DEFAULT,
     ) -> None:
         if time_obs not in TIME_OBS_MODES:
             raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
@@ -138,7 +153,11 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         ):
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, flag in (("instructions", instructions), ("goal_in_state", goal_in_state)):
+        for name, flag in (
+            ("instructions", instructions),
+            ("goal_in_state", goal_in_state),
+            ("end_on_success", end_on_success),
+        ):
             if not isinstance(flag, bool):
                 raise ValueError(f"{name} must be a bool, got {flag!r}")
         if trial_len > source.max_steps_per_reset:
@@ -157,6 +176,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._reflect_goal = instruction_goal == "reflected"
         self._goal_in_range = goal_encoding == "range"
         self._goal_in_state = goal_in_state
+        self._end_on_success = end_on_success
         self._episode_time = time_obs == "episode"
         self._action_repeat = action_repeat
         self._trials = trials
@@ -178,6 +198,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._trial = 0
         self._trial_successes = 0
         self._steps_in_trial = 0
+        self._trial_succeeded = False
         self._episode_step = 0
         self._prev_reward = 0.0
         self._done = False
@@ -221,9 +242,12 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             if self._word_index >= len(self._instruction.tokens):
                 self._phase = PHASE_TRIAL
         else:
-            reward, success = self._act(self._checked_action(action))
-            if success or self._steps_in_trial >= self._trial_len:
+            reward, succeeded_now = self._act(self._checked_action(action))
+            self._trial_succeeded |= succeeded_now
+            ended_by_success = succeeded_now and self._end_on_success
+            if ended_by_success or self._steps_in_trial >= self._trial_len:
                 trial_end = True
+                success = self._trial_succeeded
                 self._trial += 1
                 self._trial_successes += int(success)
                 if self._trial >= self._trials:
@@ -275,6 +299,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         assert self._task is not None
         self._state = self._task.reset()
         self._steps_in_trial = 0
+        self._trial_succeeded = False
         self._phase = PHASE_TRIAL
 
     def _begin_instruction_or_trial(self) -> None:
@@ -312,17 +337,21 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         return choices[int(self._sentence_rng.integers(len(choices)))]
 
     def _act(self, action: npt.NDArray[np.float32]) -> tuple[float, bool]:
+        """Steps the MDP `action_repeat` times (fewer at the trial's end): the summed reward
+        and whether the success test held at any of the steps."""
         assert self._task is not None
         reward = 0.0
+        succeeded = False
         repeats = min(self._action_repeat, self._trial_len - self._steps_in_trial)
         for _ in range(repeats):
             self._state, step_reward, success = self._task.step(action)
             self._steps_in_trial += 1
             reward += step_reward
-            if success:
+            succeeded |= success
+            if success and self._end_on_success:
                 # The trial ends at the env step that succeeds.
-                return reward, True
-        return reward, False
+                break
+        return reward, succeeded
 
     def _checked_action(self, action: Any) -> npt.NDArray[np.float32]:
         checked = np.asarray(action, dtype=self.action_space.dtype)
