@@ -1,20 +1,23 @@
 """Env server memory per env slot: one server, N envs of one id, random actions.
 
     .venv/bin/python env-server/benchmarks/server_memory.py \
-        --env million/ML10-train --num-envs 32 --resets 400 [--idle-envs 16] [--json]
+        --env million/ML10-train --num-envs 32 --resets 400 [--idle-envs 16] \
+        [--compiled-models 10] [--json]
 
-Starts a server (``--idle-envs`` goes to it), makes one batch of N envs, steps it with
-random actions until the envs have begun ``--resets`` episodes in all (each episode samples
-a task, which is where Meta-World envs get built), and samples the server's resident memory
-(VmRSS, and its peak VmHWM) along the way. Reports the peak in MB per env slot, and the
-envs the server built per episode begun (its GetStats counters): fewer idle envs cost less
-memory and more builds (~0.2 s of CPU each).
+Starts a server (``--idle-envs`` and ``--compiled-models`` go to it), makes one batch of N
+envs, steps it with random actions until the envs have begun ``--resets`` episodes in all
+(each episode samples a task, which is where Meta-World envs get built), and samples the
+server's resident memory (VmRSS, and its peak VmHWM) along the way. Reports the peak in MB
+per env slot, the envs the server built per episode begun and how many of those compiled
+their XML rather than copied a kept model (its GetStats counters), and the server's CPU
+seconds per agent step: fewer idle envs and kept models cost less memory and more builds.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import time
 from pathlib import Path
@@ -36,6 +39,12 @@ def memory_mb(pid: int) -> dict[str, float]:
     return fields
 
 
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of a process (/proc/PID/stat fields 14 and 15)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def measure(
     process: subprocess.Popen, address: str, env_id: str, num_envs: int, resets: int
 ) -> dict[str, float]:
@@ -45,6 +54,7 @@ def measure(
     start = time.perf_counter()
     env.reset(seed=0)
     made = memory_mb(process.pid)["VmRSS"]
+    cpu_after_make = cpu_seconds(process.pid)
     begun = num_envs
     steps = 0
     while begun < resets:
@@ -54,10 +64,12 @@ def measure(
         steps += 1
     elapsed = time.perf_counter() - start
     final = memory_mb(process.pid)
+    stepping_cpu = cpu_seconds(process.pid) - cpu_after_make
     env.close()
     with grpc.insecure_channel(address) as channel:
         stats = env_pb2_grpc.EnvServiceStub(channel).GetStats(env_pb2.GetStatsRequest(), timeout=30)
     built = stats.counters["metaworld_envs_built"]
+    compiled = stats.counters.get("metaworld_models_compiled", built)
     return {
         "num_envs": num_envs,
         "episodes_begun": begun,
@@ -70,6 +82,8 @@ def measure(
         "peak_mb_per_slot": round(final["VmHWM"] / num_envs, 1),
         "envs_built": int(built),
         "builds_per_episode": round(built / begun, 3),
+        "compiles_per_episode": round(compiled / begun, 3),
+        "server_cpu_ms_per_step": round(1e3 * stepping_cpu / (steps * num_envs), 3),
     }
 
 
@@ -79,15 +93,23 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, default=32)
     parser.add_argument("--resets", type=int, default=400)
     parser.add_argument("--idle-envs", type=int, default=None)
+    parser.add_argument("--compiled-models", type=int, default=None)
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
     extra = [] if args.idle_envs is None else ["--idle-envs", str(args.idle_envs)]
+    if args.compiled_models is not None:
+        extra += ["--compiled-models", str(args.compiled_models)]
     process, address = start_server(*extra)
     try:
         result = measure(process, address, args.env, args.num_envs, args.resets)
     finally:
         stop_server(process)
-    result = {"env": args.env, "idle_envs": args.idle_envs, **result}
+    result = {
+        "env": args.env,
+        "idle_envs": args.idle_envs,
+        "compiled_models": args.compiled_models,
+        **result,
+    }
     if args.json:
         print(json.dumps(result))
     else:

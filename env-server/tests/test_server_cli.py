@@ -55,6 +55,10 @@ def test_preloaded_server_serves_the_benchmark() -> None:
             # The reset built the slot's reach-v3 env; nothing has been given back yet.
             assert counters["metaworld_envs_built"] == 1.0
             assert counters["metaworld_envs_idle"] == 0.0
+            # reach-v3's XML was compiled once (the benchmark's own envs, at preload); the
+            # slot's env copied that model instead of compiling it again.
+            assert counters["metaworld_models_compiled"] == 1.0
+            assert counters["metaworld_models_copied"] >= 1.0
     finally:
         stop_server(process)
 

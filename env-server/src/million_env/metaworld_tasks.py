@@ -88,17 +88,20 @@ def parse_task_order(task_order: str) -> bool:
     return task_order == "cycle"
 
 
-#: Idle built envs a server process keeps by default (see `BuiltEnvs`). Measured with 32 slots
-#: per process serving million/ML10-train (BENCHMARKS.md, server memory): 16 idle envs peaked
-#: at 42 MB per slot, 12 at 39.6 MB (0.50 builds per episode begun instead of 0.44; a build
-#: is ~0.2 s of a core), 8 at 36.9 MB (0.61 builds).
-DEFAULT_IDLE_ENVS = 12
+#: Idle built envs a server process keeps by default (see `BuiltEnvs`). A build copies a kept
+#: compiled model (`million_env.compiled_models`: ~20 ms of a core instead of ~190 ms), so
+#: the memory goes to those instead: with 32 slots serving million/ML10-train, 2 idle envs
+#: and 10 kept models peak at 38.7 MB per slot and compile 0.1 times per episode begun,
+#: against 39.6 MB and 0.57 compiles with 12 idle envs and no kept models (BENCHMARKS.md,
+#: server memory).
+DEFAULT_IDLE_ENVS = 2
 
 
 class BuiltEnvs:
     """The Meta-World envs built in this process, shared by every sampler.
 
-    A built env costs ~20 MB and ~0.1 s to build. A sampler holds only the env of its current
+    A built env costs ~20 MB and ~20 ms to build from a kept compiled model (~0.2 s to
+    compile one). A sampler holds only the env of its current
     task and gives it back when it samples the next one, so a process holds one env per slot
     in use plus at most `max_idle` idle ones, instead of one per slot per class (ML45, 32
     slots: 48 envs instead of 1,440). When too many are idle, one of the class with the most

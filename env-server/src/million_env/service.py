@@ -393,6 +393,7 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
     async def GetStats(
         self, request: env_pb2.GetStatsRequest, context: grpc.aio.ServicerContext
     ) -> env_pb2.GetStatsResponse:
+        from million_env.compiled_models import COMPILED_MODELS
         from million_env.metaworld_tasks import BUILT_ENVS
         from million_env.million import protocol_stats
 
@@ -405,4 +406,5 @@ class EnvService(env_pb2_grpc.EnvServiceServicer):
         counters.update(self.stats.counters())
         counters.update(protocol_stats())
         counters.update(BUILT_ENVS.counters())
+        counters.update(COMPILED_MODELS.counters())
         return env_pb2.GetStatsResponse(counters=counters)
