@@ -310,6 +310,9 @@ pub struct RuntimeConfig {
     pub learner_nice: i32,
     /// "cpu", "cuda" or "auto" (CUDA when available) for the learner and the actor.
     pub device: String,
+    /// More command-line arguments of each local env server, e.g. `["--idle-envs", "4"]`
+    /// (`million-env-server --help`); servers given with `--env-server` are not touched.
+    pub env_server_args: Vec<String>,
 }
 
 impl Default for RuntimeConfig {
@@ -320,6 +323,7 @@ impl Default for RuntimeConfig {
             io_threads: 1,
             learner_nice: 0,
             device: "auto".into(),
+            env_server_args: Vec::new(),
         }
     }
 }

@@ -108,7 +108,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
     }
     let reports: Vec<EvalReport> = rt.block_on(async {
         let (_local, servers) = if a.env_servers.is_empty() {
-            let local = start_local_servers(1).await?;
+            let local = start_local_servers(1, &cfg.runtime.env_server_args).await?;
             let addrs: Vec<String> = local.iter().map(|s| s.addr().to_owned()).collect();
             (local, addrs)
         } else {
@@ -163,7 +163,7 @@ async fn write_videos(
     client_config: million_env::ClientConfig,
 ) -> anyhow::Result<ExitCode> {
     let (_local, server) = if a.env_servers.is_empty() {
-        let local = start_local_servers(1).await?;
+        let local = start_local_servers(1, &cfg.runtime.env_server_args).await?;
         let addr = local[0].addr().to_owned();
         (local, addr)
     } else {

@@ -18,14 +18,22 @@ pub struct EnvAccess {
     pub tls: Option<TlsOptions>,
 }
 
-/// Starts `count` local env servers from the repository's `.venv`; each is
-/// restarted on its port if its process dies, so the pool reconnects to it.
-pub async fn start_local_servers(count: usize) -> anyhow::Result<Vec<SupervisedServer>> {
+/// Starts `count` local env servers from the repository's `.venv`, with `extra_args` on
+/// their command lines (`runtime.env_server_args`); each is restarted on its port if its
+/// process dies, so the pool reconnects to it.
+pub async fn start_local_servers(
+    count: usize,
+    extra_args: &[String],
+) -> anyhow::Result<Vec<SupervisedServer>> {
     let binary = default_server_binary().context(
         "no --env-server given and no local million-env-server found (run `make setup`)",
     )?;
-    tracing::info!(count, binary = %binary.display(), "starting local env servers");
-    let servers = LocalServer::start_many(&binary, LocalServerOptions::default(), count)
+    tracing::info!(count, binary = %binary.display(), ?extra_args, "starting local env servers");
+    let options = LocalServerOptions {
+        extra_args: extra_args.to_vec(),
+        ..LocalServerOptions::default()
+    };
+    let servers = LocalServer::start_many(&binary, options, count)
         .await
         .context("starting local env servers")?;
     Ok(servers

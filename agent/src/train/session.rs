@@ -121,7 +121,8 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
 
     let (local_servers, servers): (Vec<SupervisedServer>, Vec<String>) = if opts.servers.is_empty()
     {
-        let local = start_local_servers(cfg.runtime.env_servers).await?;
+        let local =
+            start_local_servers(cfg.runtime.env_servers, &cfg.runtime.env_server_args).await?;
         let addrs = local.iter().map(|s| s.addr().to_owned()).collect();
         (local, addrs)
     } else {
