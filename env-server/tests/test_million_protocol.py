@@ -117,6 +117,32 @@ def test_successful_trial_is_followed_directly_by_the_next_trial() -> None:
     assert np.linalg.norm(final["obs"]["state"][:2] - final["info"]["goal"][:2]) < SUCCESS_DISTANCE
 
 
+def test_full_length_trials_keep_a_success_that_was_left_behind() -> None:
+    """`end_on_success=False`: a trial runs its trial_len env steps; one that met the goal
+    and then walked away still counts as a success, and the next trial follows directly."""
+    env = make(trials=2, trial_len=25, end_on_success=False)
+
+    def reach_then_leave(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
+        if info["steps_in_trial"] < 12:
+            return walk_to_goal(obs, info)
+        # Back towards the start for the rest of the trial, away from the goal.
+        action = np.zeros(4, dtype=np.float32)
+        action[:2] = np.clip(-obs["state"][:2] / 0.15, -1.0, 1.0)
+        return action
+
+    records = run_episode(env, reach_then_leave, seed=1)
+    assert phases(records) == ["instruction", "trial", "trial"]
+    ends = [i for i, r in enumerate(records) if r["info"]["trial_end"]]
+    assert [records[i]["info"]["success"] for i in ends] == [True, True]
+    # Each trial lasted its 25 env steps (action repeat 1), and left the goal before the end.
+    assert all(records[i - 1]["info"]["steps_in_trial"] == 24 for i in ends)
+    last = records[ends[0] - 1]
+    assert np.linalg.norm(last["obs"]["state"][:2] - last["info"]["goal"][:2]) > SUCCESS_DISTANCE
+    # `success` is set only at the step that ends a successful trial.
+    assert sum(r["info"]["success"] for r in records) == 2
+    assert records[-1]["info"]["trial_successes"] == 2
+
+
 def test_mixed_outcomes_follow_the_protocol() -> None:
     # Fail the first trial, then succeed: instruction, trial, instruction, trial, trial.
     env = make(trials=3)

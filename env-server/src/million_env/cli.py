@@ -71,7 +71,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=DEFAULT_COMPILED_MODELS,
         metavar="N",
         help="compiled MuJoCo models of Meta-World classes kept so that building an env "
-        "copies one (~15 ms) instead of compiling its XML (~0.3 s); ~21 MB each, least "
+        "copies one (~20 ms) instead of compiling its XML (~0.2 s); ~21 MB each, least "
         "recently used dropped; 0 = compile every env",
     )
     parser.add_argument(

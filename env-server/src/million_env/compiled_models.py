@@ -21,8 +21,9 @@ from collections import OrderedDict
 
 import mujoco
 
-#: Templates a process keeps by default: one for every ML10 train class, and most of a
-#: split's classes on ML45 (BENCHMARKS.md, server memory).
+#: Templates a process keeps by default: as many as ML10 has train classes (loading the
+#: benchmark compiles its 5 test classes too, so a few train classes compile again once),
+#: a fifth of ML45's (BENCHMARKS.md, server memory).
 DEFAULT_COMPILED_MODELS = 10
 
 
@@ -32,7 +33,8 @@ class CompiledModels:
 
     def __init__(self, max_models: int = DEFAULT_COMPILED_MODELS) -> None:
         self._lock = threading.Lock()
-        # (path, mtime_ns, size) -> template: an XML file changed on disk compiles again.
+        # (path, mtime_ns, size) -> template: a top-level XML file changed on disk compiles
+        # again (files it includes are not checked; Meta-World's are package data).
         self._templates: OrderedDict[tuple[str, int, int], mujoco.MjModel] = OrderedDict()
         self.max_models = max_models
         self.compiles = 0

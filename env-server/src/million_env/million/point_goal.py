@@ -42,9 +42,11 @@ class PointGoalTask:
     """One goal of PointGoal; each trial starts near the origin.
 
     Reward per env step: the progress towards the goal, (d_before - d_after) /
-    GOAL_RADIUS, plus SUCCESS_BONUS at the step that succeeds. Being potential
-    based, the return of a trial does not grow by lingering, so a success (which
-    ends the trial) is always worth more than hovering near the goal.
+    GOAL_RADIUS, plus SUCCESS_BONUS at every step within the success distance. With
+    PointGoal's default `end_on_success=True` a success ends the trial, the progress
+    term is potential based and the return of a trial does not grow by lingering, so
+    succeeding is always worth more than hovering near the goal (with
+    `end_on_success=False` the bonus is paid at each step spent at the goal).
     """
 
     def __init__(
