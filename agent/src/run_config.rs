@@ -16,6 +16,7 @@ use crate::config::{
     AgentConfig, BufferConfig, ConfigError, ModelConfig, OptimConfig, PopArtConfig, RuntimeConfig,
     VmpoConfig, read_config_file,
 };
+use crate::train::servers::check_local_server_args;
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
@@ -214,6 +215,9 @@ impl RunConfig {
         if self.runtime.env_servers == 0 {
             return bad("runtime.env_servers must be > 0".into());
         }
+        if let Err(e) = check_local_server_args(&self.runtime.env_server_args) {
+            return bad(format!("runtime.env_server_args: {e}"));
+        }
         self.env_kwargs()?;
         self.eval_splits()?;
         Ok(())
@@ -343,6 +347,22 @@ mod tests {
         std::fs::write(&child, "base = \"nowhere.toml\"\n").unwrap();
         let err = RunConfig::from_file(&child).unwrap_err().to_string();
         assert!(err.contains("nowhere.toml"), "{err}");
+    }
+
+    #[test]
+    fn server_args_the_agent_owns_are_refused() {
+        for arg in [
+            "--address",
+            "--token=s3cret",
+            "--tls-cert",
+            "--tls-key=k.pem",
+        ] {
+            let toml = format!("[runtime]\nenv_server_args = [{arg:?}, \"x\"]\n");
+            let err = RunConfig::from_toml_str(&toml).unwrap_err().to_string();
+            assert!(err.contains(arg) && err.contains("--env-server"), "{err}");
+        }
+        let ok = "[runtime]\nenv_server_args = [\"--idle-envs\", \"4\", \"--log-level=DEBUG\"]\n";
+        assert!(RunConfig::from_toml_str(ok).is_ok());
     }
 
     #[test]

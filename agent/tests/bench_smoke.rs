@@ -27,6 +27,47 @@ fn million(args: &[&str]) -> String {
     String::from_utf8(out.stdout).unwrap()
 }
 
+/// `million bench env ARGS` run to its end: (success, stderr).
+fn bench_env_status(extra: &[&str]) -> (bool, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_million"))
+        .args([
+            "bench",
+            "env",
+            "--env",
+            "CartPole-v1",
+            "--batch",
+            "1",
+            "--servers",
+            "1",
+        ])
+        .args(["--seconds", "0.2", "--latency-steps", "0"])
+        .args(extra)
+        .current_dir(repo())
+        .env("MILLION_ROOT", repo())
+        .env("RUST_LOG", "warn")
+        .output()
+        .expect("million runs");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+/// `--server-arg` reaches the servers' command lines (a value the server refuses stops the
+/// bench), and the options the agent owns for its local servers are refused up front.
+#[test]
+fn bench_env_passes_server_args_and_refuses_the_agents_own() {
+    let (ok, stderr) = bench_env_status(&["--server-arg=--idle-envs", "--server-arg=-1"]);
+    assert!(
+        !ok && stderr.contains("exited before it listened"),
+        "{stderr}"
+    );
+    let (ok, stderr) = bench_env_status(&["--server-arg=--token=s3cret"]);
+    assert!(!ok && stderr.contains("--env-server"), "{stderr}");
+    let (ok, stderr) = bench_env_status(&["--server-arg=--idle-envs", "--server-arg=1"]);
+    assert!(ok, "{stderr}");
+}
+
 #[test]
 fn bench_env_compares_served_with_in_process_steps() {
     let out = million(&[

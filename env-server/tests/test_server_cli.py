@@ -26,6 +26,13 @@ def test_bad_limits_rejected() -> None:
         parse_args(["--max-envs-total", "0"])
 
 
+@pytest.mark.parametrize("abbreviated", ["--addr", "--tok", "--tls-c"])
+def test_abbreviated_options_are_refused(abbreviated: str) -> None:
+    # The agent vets its local servers' extra arguments by exact option names.
+    with pytest.raises(SystemExit):
+        parse_args([abbreviated, "x"])
+
+
 @pytest.mark.parametrize("bad", ["ML1", "ML2", "ML10:reach-v3", "ML1:fly-v3"])
 def test_bad_preload_rejected(bad: str) -> None:
     with pytest.raises(SystemExit):

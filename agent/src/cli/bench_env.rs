@@ -20,6 +20,8 @@ use million_env::{
 };
 use serde::Serialize;
 
+use crate::train::servers::check_local_server_args;
+
 #[derive(Debug, Args)]
 pub struct EnvBench {
     /// Env ids (repeatable).
@@ -37,6 +39,10 @@ pub struct EnvBench {
     /// Round trips timed for the latency of a trivial env (0: skip).
     #[arg(long, default_value_t = 2000)]
     pub latency_steps: usize,
+    /// One more command-line argument of every env server started (repeatable), e.g.
+    /// `--server-arg=--idle-envs --server-arg=4`; as `runtime.env_server_args` of a config.
+    #[arg(long = "server-arg", allow_hyphen_values = true)]
+    pub server_args: Vec<String>,
     /// Python that runs the in-process side (default: the repository's .venv).
     #[arg(long)]
     pub python: Option<PathBuf>,
@@ -72,6 +78,11 @@ struct Report {
 
 pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(args.seconds > 0.0, "--seconds must be positive");
+    check_local_server_args(&args.server_args).map_err(|e| anyhow::anyhow!("--server-arg: {e}"))?;
+    let options = LocalServerOptions {
+        extra_args: args.server_args.clone(),
+        ..LocalServerOptions::default()
+    };
     let python = super::bench::python(args.python.as_deref());
     let script = find_in_repository(Path::new("env-server/benchmarks/inprocess_rate.py"))
         .context("env-server/benchmarks/inprocess_rate.py not found (set MILLION_ROOT)")?;
@@ -85,8 +96,14 @@ pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
                 if batch < servers {
                     continue;
                 }
-                let served =
-                    rt.block_on(served_rate(&binary, env, servers, batch, args.seconds))?;
+                let served = rt.block_on(served_rate(
+                    &binary,
+                    &options,
+                    env,
+                    servers,
+                    batch,
+                    args.seconds,
+                ))?;
                 let in_process =
                     in_process_rate(&python, &script, env, servers, batch, args.seconds)?;
                 let case = Case {
@@ -108,7 +125,7 @@ pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
         }
     }
     let latency = (args.latency_steps > 0)
-        .then(|| rt.block_on(round_trip_latency(&binary, args.latency_steps)))
+        .then(|| rt.block_on(round_trip_latency(&binary, &options, args.latency_steps)))
         .transpose()?;
     let report = Report {
         cases,
@@ -140,8 +157,12 @@ fn print_table(report: &Report) {
     }
 }
 
-async fn start_servers(binary: &Path, count: usize) -> anyhow::Result<Vec<LocalServer>> {
-    Ok(LocalServer::start_many(binary, LocalServerOptions::default(), count).await?)
+async fn start_servers(
+    binary: &Path,
+    options: &LocalServerOptions,
+    count: usize,
+) -> anyhow::Result<Vec<LocalServer>> {
+    Ok(LocalServer::start_many(binary, options.clone(), count).await?)
 }
 
 async fn connect(servers: &[LocalServer], env: &str, batch: usize) -> anyhow::Result<EnvPool> {
@@ -159,12 +180,13 @@ async fn connect(servers: &[LocalServer], env: &str, batch: usize) -> anyhow::Re
 /// Env steps/s of `batch` envs served by `servers` processes, pipelined over the groups.
 async fn served_rate(
     binary: &Path,
+    options: &LocalServerOptions,
     env: &str,
     servers: usize,
     batch: usize,
     seconds: f64,
 ) -> anyhow::Result<f64> {
-    let procs = start_servers(binary, servers).await?;
+    let procs = start_servers(binary, options, servers).await?;
     let mut pool = connect(&procs, env, batch).await?;
     let mut sampler = ActionSampler::new(&pool.spec().action_space, 0)?;
     let groups = pool.num_groups();
@@ -235,9 +257,13 @@ fn in_process_rate(
 }
 
 /// Round trip of one step of CartPole-v1 (batch 1, one server): p50 and p99.
-async fn round_trip_latency(binary: &Path, steps: usize) -> anyhow::Result<Latency> {
+async fn round_trip_latency(
+    binary: &Path,
+    options: &LocalServerOptions,
+    steps: usize,
+) -> anyhow::Result<Latency> {
     const ENV: &str = "CartPole-v1";
-    let procs = start_servers(binary, 1).await?;
+    let procs = start_servers(binary, options, 1).await?;
     let mut pool = connect(&procs, ENV, 1).await?;
     let mut sampler = ActionSampler::new(&pool.spec().action_space, 0)?;
     pool.reset_all().await?;

@@ -18,6 +18,30 @@ pub struct EnvAccess {
     pub tls: Option<TlsOptions>,
 }
 
+/// Server options the agent owns for the servers it starts: it binds them to loopback and
+/// talks to them without a token or TLS, so a config that set these would expose a server
+/// or lock the agent out of it. The server refuses abbreviated options, so the exact names
+/// (before any `=value`) are all there is to check.
+const RESERVED_SERVER_ARGS: [&str; 4] = ["--address", "--token", "--tls-cert", "--tls-key"];
+
+fn reserved_server_arg(arg: &str) -> bool {
+    let name = arg.split_once('=').map_or(arg, |(name, _)| name);
+    RESERVED_SERVER_ARGS.contains(&name)
+}
+
+/// Refuses extra arguments of local servers that would override what the agent owns (see
+/// `RESERVED_SERVER_ARGS`), naming the argument and what to do instead.
+pub fn check_local_server_args(args: &[String]) -> Result<(), String> {
+    match args.iter().find(|a| reserved_server_arg(a)) {
+        None => Ok(()),
+        Some(arg) => Err(format!(
+            "{arg:?} is set by the agent for the servers it starts (loopback address, no \
+             token, no TLS); to serve elsewhere or guarded, start the servers yourself and \
+             pass --env-server"
+        )),
+    }
+}
+
 /// Starts `count` local env servers from the repository's `.venv`, with `extra_args` on
 /// their command lines (`runtime.env_server_args`); each is restarted on its port if its
 /// process dies, so the pool reconnects to it.

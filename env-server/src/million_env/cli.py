@@ -28,6 +28,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         prog="million-env-server",
         description="Serve Gymnasium and Meta-World environments over the MILLION env API (gRPC).",
+        # No abbreviations: the agent refuses --address, --token and --tls-* in a config's
+        # runtime.env_server_args by their exact names, so a prefix must not reach them.
+        allow_abbrev=False,
     )
     parser.add_argument(
         "--address",

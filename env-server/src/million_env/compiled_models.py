@@ -21,6 +21,8 @@ from collections import OrderedDict
 
 import mujoco
 
+from million_env.errors import require_count
+
 #: Templates a process keeps by default: as many as ML10 has train classes (loading the
 #: benchmark compiles its 5 test classes too, so a few train classes compile again once),
 #: a fifth of ML45's (BENCHMARKS.md, server memory).
@@ -46,8 +48,7 @@ class CompiledModels:
 
     @max_models.setter
     def max_models(self, value: int) -> None:
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ValueError(f"compiled models must be a non-negative integer, got {value!r}")
+        value = require_count(value, "compiled models")
         with self._lock:
             self._max_models = value
             self._evict()

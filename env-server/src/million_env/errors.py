@@ -1,4 +1,5 @@
-"""The one exception type the service turns into a gRPC status."""
+"""The one exception type the service turns into a gRPC status, and the check of a count
+setting that raises `ValueError` before a server starts."""
 
 from __future__ import annotations
 
@@ -36,3 +37,10 @@ def internal(message: str) -> ApiError:
 
 def unimplemented(message: str) -> ApiError:
     return ApiError(grpc.StatusCode.UNIMPLEMENTED, message)
+
+
+def require_count(value: object, what: str) -> int:
+    """`value` if it is a non-negative int (not a bool), else `ValueError` naming `what`."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{what} must be a non-negative integer, got {value!r}")
+    return value

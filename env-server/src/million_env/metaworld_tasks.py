@@ -20,6 +20,8 @@ import metaworld
 import numpy as np
 from metaworld.env_dict import MT50_V3
 
+from million_env.errors import require_count
+
 #: The 50 Meta-World v3 task names in MT50 order; a name's index is its task id.
 ALL_TASK_NAMES: tuple[str, ...] = tuple(MT50_V3.keys())
 
@@ -121,9 +123,7 @@ class BuiltEnvs:
 
     @max_idle.setter
     def max_idle(self, value: int) -> None:
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            raise ValueError(f"idle envs must be a non-negative integer, got {value!r}")
-        self._max_idle = value
+        self._max_idle = require_count(value, "idle envs")
 
     def idle(self) -> int:
         with self._lock:
