@@ -73,6 +73,15 @@ async fn a_server_lost_mid_evaluation_voids_the_scores() {
     let report = tally.report("train", "million/PointGoal".into());
     assert_eq!(report.episodes, ENVS);
     assert!(report.trials >= ENVS as u64, "every episode has trials");
+    // Every trial but an episode's first follows a success or a failure of its episode.
+    assert_eq!(
+        report.after_success_trials + report.after_failure_trials,
+        report.trials - ENVS as u64,
+        "{report:?}"
+    );
+    // Random actions fail most trials, so later trials follow failures.
+    assert!(report.after_failure_trials > 0, "{report:?}");
+    assert!((0.0..=1.0).contains(&report.after_failure), "{report:?}");
 
     // The same episodes again, with the server killed and restarted a few steps in:
     // the cut step voids the tally instead of leaving it the trials ended so far.

@@ -147,6 +147,14 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
             }
             println!("  {:<28} {:>6.3}", "mean", r.mean);
             println!("  {:<28} {:>6.3}", "first trials", r.first_trial);
+            println!(
+                "  {:<28} {:>6.3}",
+                "trials after a success", r.after_success
+            );
+            println!(
+                "  {:<28} {:>6.3}",
+                "trials after a failure", r.after_failure
+            );
         }
     }
     Ok(ExitCode::SUCCESS)

@@ -34,6 +34,18 @@ pub struct EvalReport {
     pub mean: f64,
     /// Success rate of first trials only (instruction following without trial and error).
     pub first_trial: f64,
+    /// Success rate of the later trials that follow a successful one in their episode
+    /// (NaN if none): the protocol gives no new instruction then, so this is the goal
+    /// recalled from memory; below `first_trial` means the memory loses it.
+    pub after_success: f64,
+    /// Success rate of the later trials that follow a failed one (NaN if none): they are
+    /// re-instructed and can use the failure; above `first_trial` is learning by trial and
+    /// error (the harder goals are the ones retried, so it starts lower).
+    pub after_failure: f64,
+    /// Trials that `after_success` and `after_failure` rest on (with one first trial per
+    /// episode, they sum to `trials - episodes`).
+    pub after_success_trials: u64,
+    pub after_failure_trials: u64,
     pub mean_return: f64,
 }
 
@@ -150,9 +162,12 @@ pub struct EvalTally {
     done: Vec<bool>,
     scored: usize,
     per_task_episodes: usize,
-    trial_index: Vec<usize>,
+    /// Each row's last trial outcome in its episode (None before its first trial).
+    previous: Vec<Option<bool>>,
     table: SuccessTable,
     first: SuccessTable,
+    after_success: SuccessTable,
+    after_failure: SuccessTable,
     tracker: TrialTracker,
     returns: Vec<f64>,
 }
@@ -166,9 +181,11 @@ impl EvalTally {
             done: scored.iter().map(|s| !s).collect(),
             scored: scored.iter().filter(|&&s| s).count(),
             per_task_episodes,
-            trial_index: vec![0; tasks.len()],
+            previous: vec![None; tasks.len()],
             table: SuccessTable::default(),
             first: SuccessTable::default(),
+            after_success: SuccessTable::default(),
+            after_failure: SuccessTable::default(),
             tracker: TrialTracker::new(tasks.len(), default_task),
             returns: vec![0.0; tasks.len()],
         }
@@ -194,10 +211,12 @@ impl EvalTally {
                 continue;
             }
             self.table.record(&t.task, t.success);
-            if self.trial_index[t.row] == 0 {
-                self.first.record("all", t.success);
+            match self.previous[t.row] {
+                None => self.first.record("all", t.success),
+                Some(true) => self.after_success.record("all", t.success),
+                Some(false) => self.after_failure.record("all", t.success),
             }
-            self.trial_index[t.row] += 1;
+            self.previous[t.row] = Some(t.success);
         }
         for (row, end) in step.ended().into_iter().enumerate() {
             if !self.done[row] {
@@ -224,6 +243,10 @@ impl EvalTally {
                 .collect(),
             mean: self.table.mean(),
             first_trial: self.first.mean(),
+            after_success: self.after_success.mean(),
+            after_failure: self.after_failure.mean(),
+            after_success_trials: self.after_success.trials(),
+            after_failure_trials: self.after_failure.trials(),
             mean_return: self.returns.iter().sum::<f64>() / self.scored.max(1) as f64,
         }
     }

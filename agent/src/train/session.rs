@@ -455,6 +455,14 @@ fn record_eval(s: &mut Scalars, r: &EvalReport) {
         format!("eval/{}/first_trial_success", r.split),
         r.first_trial,
     );
+    s.insert(
+        format!("eval/{}/after_success_trial_success", r.split),
+        r.after_success,
+    );
+    s.insert(
+        format!("eval/{}/after_failure_trial_success", r.split),
+        r.after_failure,
+    );
     s.insert(format!("eval/{}/episode_return", r.split), r.mean_return);
     for (task, v) in &r.per_task {
         s.insert(format!("eval/{}/task/{task}", r.split), *v);
