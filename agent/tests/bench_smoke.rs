@@ -1,8 +1,9 @@
 //! Tiny runs of `million bench env|train|learner|acting`, so the benchmarks keep working.
 //! They check what each reports is there and sane; a timing is never asserted.
 
+use std::ffi::OsStr;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Output};
 
 use serde_json::Value;
 
@@ -10,14 +11,23 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-fn million(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_million"))
+/// `million ARGS` run to its end in the repository, whatever its exit status.
+fn run_million<I, S>(args: I) -> Output
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<OsStr>,
+{
+    Command::new(env!("CARGO_BIN_EXE_million"))
         .args(args)
         .current_dir(repo())
         .env("MILLION_ROOT", repo())
         .env("RUST_LOG", "warn")
         .output()
-        .expect("million runs");
+        .expect("million runs")
+}
+
+fn million(args: &[&str]) -> String {
+    let out = run_million(args);
     assert!(
         out.status.success(),
         "million {args:?}: {}\n{}",
@@ -29,24 +39,18 @@ fn million(args: &[&str]) -> String {
 
 /// `million bench env ARGS` run to its end: (success, stderr).
 fn bench_env_status(extra: &[&str]) -> (bool, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_million"))
-        .args([
-            "bench",
-            "env",
-            "--env",
-            "CartPole-v1",
-            "--batch",
-            "1",
-            "--servers",
-            "1",
-        ])
-        .args(["--seconds", "0.2", "--latency-steps", "0"])
-        .args(extra)
-        .current_dir(repo())
-        .env("MILLION_ROOT", repo())
-        .env("RUST_LOG", "warn")
-        .output()
-        .expect("million runs");
+    let base = [
+        "bench",
+        "env",
+        "--env",
+        "CartPole-v1",
+        "--batch",
+        "1",
+        "--servers",
+        "1",
+    ];
+    let timing = ["--seconds", "0.2", "--latency-steps", "0"];
+    let out = run_million(base.iter().chain(&timing).chain(extra));
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
