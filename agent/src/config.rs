@@ -73,6 +73,12 @@ pub struct ModelConfig {
     /// running mean and variance before the token's LayerNorm (not in the paper; empty = the
     /// paper). See `model::obs_norm` and LEARNING.md.
     pub obs_norm: Vec<String>,
+    /// Words of the latest instruction the agent keeps beside every token (0 = the paper: a
+    /// word reaches later steps only through the GTrXL memory). With K > 0 the token ends with
+    /// K slots of [valid, word…], and the network pools them by attention into its input, so
+    /// every trial step has a gradient path to the goal word (not in the paper; see
+    /// `model::instruction` and LEARNING.md).
+    pub instruction_words: usize,
 }
 
 impl Default for ModelConfig {
@@ -109,14 +115,36 @@ impl Default for ModelConfig {
             value_hidden: 256,
             min_std: 1e-4,
             obs_norm: vec![],
+            instruction_words: 0,
         }
     }
 }
 
+/// The observation field whose values are the instruction's words.
+pub const WORD_FIELD: &str = "word";
+
 impl ModelConfig {
-    /// Length of the concatenated observation token.
+    /// Length of the token the model takes: the configured fields, then the instruction slots.
     pub fn obs_dim(&self) -> usize {
+        self.fields_dim() + self.instruction_dim()
+    }
+
+    /// Length of the configured fields concatenated.
+    pub fn fields_dim(&self) -> usize {
         self.observation.iter().map(|f| f.size).sum()
+    }
+
+    /// Width of one word (the `word` field's size; 0 without one).
+    pub fn word_dim(&self) -> usize {
+        self.observation
+            .iter()
+            .find(|f| f.key == WORD_FIELD)
+            .map_or(0, |f| f.size)
+    }
+
+    /// Length of the instruction slots at the token's end: K × (1 + word width).
+    pub fn instruction_dim(&self) -> usize {
+        self.instruction_words * (1 + self.word_dim())
     }
 
     /// Per token feature: whether `obs_norm` normalises it.
@@ -405,6 +433,13 @@ impl AgentConfig {
                 "model.obs_norm names `{key}`, which is not a field of model.observation"
             ));
         }
+        if m.instruction_words > 0 && m.word_dim() == 0 {
+            return bad(format!(
+                "model.instruction_words = {} needs a `{WORD_FIELD}` field in model.observation \
+                 (the words it keeps)",
+                m.instruction_words
+            ));
+        }
         let p = &self.popart;
         if p.beta <= 0.0 || p.beta > 1.0 || p.sigma_min <= 0.0 || p.sigma_min >= p.sigma_max {
             return bad("popart: need 0 < beta <= 1 and 0 < sigma_min < sigma_max".into());
@@ -498,5 +533,17 @@ mod tests {
     fn inconsistent_values_are_rejected() {
         let err = AgentConfig::from_toml_str("[model]\nheads = 5\n").unwrap_err();
         assert!(err.to_string().contains("heads"), "{err}");
+    }
+
+    #[test]
+    fn instruction_slots_extend_the_token_and_need_a_word_field() {
+        let c = AgentConfig::from_toml_str("[model]\ninstruction_words = 12\n").unwrap();
+        assert_eq!(c.model.fields_dim(), 91);
+        assert_eq!(c.model.obs_dim(), 91 + 12 * 51);
+        let err = AgentConfig::from_toml_str(
+            "[model]\ninstruction_words = 12\nobservation = [{ key = \"state\", size = 39 }]\n",
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("needs a `word` field"), "{err}");
     }
 }

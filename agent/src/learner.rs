@@ -271,8 +271,9 @@ impl Learner {
         // 8. Normalised observations: the batch joins the pending moments, which the
         // statistics take in when the target is synced (model::obs_norm says why).
         let sync = (self.updates + 1).is_multiple_of(self.cfg.buffer.target_period as u64);
+        let fields = self.model.fields(&batch.obs);
         if let Some(norm) = self.model.obs_norm_mut() {
-            norm.observe(&batch.obs);
+            norm.observe(&fields);
             if sync {
                 norm.commit();
             }

@@ -178,3 +178,50 @@ fn gates_are_near_identity_at_initialisation() {
     let rel = ((&out - &x).norm().double_value(&[])) / x.norm().double_value(&[]);
     assert!(rel < 0.4, "relative change {rel}");
 }
+
+#[test]
+fn instruction_slots_reach_every_step_and_the_paper_model_has_none() {
+    tch::set_num_threads(1);
+    tch::manual_seed(5);
+    let paper = VarStore::new(Device::Cpu);
+    let _ = Model::new(&paper.root(), &small_model(4, 4), &PopArtConfig::default());
+    assert!(
+        !paper
+            .variables()
+            .keys()
+            .any(|k| k.starts_with("instruction")),
+        "instruction_words = 0 must build the paper's network"
+    );
+    let cfg = million::config::ModelConfig {
+        instruction_words: 2,
+        ..small_model(4, 4)
+    };
+    let vs = VarStore::new(Device::Cpu);
+    let model = Model::new(&vs.root(), &cfg, &PopArtConfig::default());
+    let (fields, dim) = (cfg.fields_dim() as i64, cfg.obs_dim() as i64);
+    assert_eq!(dim, fields + 2 * 4);
+    let obs = Tensor::randn([1, 4, dim], (Kind::Float, Device::Cpu));
+    // Slot 0 valid at every step, slot 1 empty.
+    let _ = obs.narrow(2, fields, 1).fill_(1.0);
+    let _ = obs.narrow(2, fields + 4, 4).fill_(0.0);
+    let obs = obs.set_requires_grad(true);
+    let starts = Tensor::from_slice(&[true, false, false, false]).view([1, 4]);
+    let (memory, memory_len) = model.core().empty_memory(1, Device::Cpu);
+    let out = model.forward_segment(&obs, &starts, &memory, &memory_len);
+    // The last step's action reaches the word in its own slots: a gradient path that does not
+    // run through the GTrXL memory.
+    out.mean.narrow(1, 3, 1).sum(Kind::Float).backward();
+    let grad = obs.grad();
+    let word_grad = grad
+        .narrow(1, 3, 1)
+        .narrow(2, fields + 1, 3)
+        .abs()
+        .sum(Kind::Float);
+    assert!(f64::try_from(word_grad).unwrap() > 0.0);
+    let empty_grad = grad.narrow(2, fields + 5, 3).abs().sum(Kind::Float);
+    assert_eq!(
+        f64::try_from(empty_grad).unwrap(),
+        0.0,
+        "an empty slot's word is ignored"
+    );
+}

@@ -1,8 +1,10 @@
 //! The MILLION network: observation token → [running normalisation, `model.obs_norm`] →
-//! LayerNorm → Linear → GTrXL → policy head and Pop-Art value head (ALGORITHM.md §2).
+//! LayerNorm → Linear [+ the instruction slots' pooling, `model.instruction_words`] → GTrXL →
+//! policy head and Pop-Art value head (ALGORITHM.md §2).
 
 pub mod acting;
 pub mod gtrxl;
+pub mod instruction;
 pub mod obs_norm;
 pub mod observation;
 pub mod policy;
@@ -13,6 +15,7 @@ use tch::{Device, Tensor};
 
 use crate::config::{ModelConfig, PopArtConfig};
 use gtrxl::Gtrxl;
+use instruction::InstructionPool;
 use obs_norm::ObsNorm;
 use policy::PolicyHead;
 use popart::PopArt;
@@ -26,6 +29,8 @@ pub struct Model {
     obs_norm: Option<ObsNorm>,
     input_norm: LayerNorm,
     input_proj: Linear,
+    /// Attention pooling of the instruction slots (None = the paper).
+    instruction: Option<InstructionPool>,
     core: Gtrxl,
     policy: PolicyHead,
     value_hidden: Linear,
@@ -49,12 +54,20 @@ pub struct SegmentOutput {
 impl Model {
     pub fn new(p: &nn::Path, cfg: &ModelConfig, popart: &PopArtConfig) -> Self {
         let d = cfg.d_model as i64;
-        let obs = cfg.obs_dim() as i64;
+        let obs = cfg.fields_dim() as i64;
         Self {
             obs_norm: (!cfg.obs_norm.is_empty())
                 .then(|| ObsNorm::new(p / "obs_norm", &cfg.obs_norm_mask())),
             input_norm: nn::layer_norm(p / "input_norm", vec![obs], Default::default()),
             input_proj: nn::linear(p / "input_proj", obs, d, Default::default()),
+            instruction: (cfg.instruction_words > 0).then(|| {
+                InstructionPool::new(
+                    &(p / "instruction"),
+                    cfg.instruction_words,
+                    cfg.word_dim(),
+                    cfg.d_model,
+                )
+            }),
             core: Gtrxl::new(p / "core", cfg),
             policy: PolicyHead::new(
                 p / "policy",
@@ -104,17 +117,26 @@ impl Model {
         self.obs_norm.as_mut()
     }
 
+    /// The configured fields of tokens `[..., obs]`: everything but the instruction slots.
+    pub fn fields(&self, obs: &Tensor) -> Tensor {
+        obs.narrow(-1, 0, self.cfg.fields_dim() as i64)
+    }
+
     /// Token `[..., obs]` → model input `[..., d]`.
     pub fn embed(&self, obs: &Tensor) -> Tensor {
-        let normalised;
-        let obs = match &self.obs_norm {
-            Some(norm) => {
-                normalised = norm.forward(obs);
-                &normalised
-            }
-            None => obs,
+        let fields = self.fields(obs);
+        let fields = match &self.obs_norm {
+            Some(norm) => norm.forward(&fields),
+            None => fields,
         };
-        self.input_proj.forward(&self.input_norm.forward(obs))
+        let x = self.input_proj.forward(&self.input_norm.forward(&fields));
+        match &self.instruction {
+            Some(pool) => {
+                let slots = obs.narrow(-1, self.cfg.fields_dim() as i64, pool.width());
+                x + pool.forward(&slots)
+            }
+            None => x,
+        }
     }
 
     pub fn policy(&self, core: &Tensor) -> (Tensor, Tensor) {

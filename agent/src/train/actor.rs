@@ -10,7 +10,7 @@ use crate::algo::rollout::{RolloutCollector, StepRecord};
 use crate::model::Model;
 use crate::model::acting::ActingState;
 use crate::model::policy::sample_actions;
-use crate::train::tokens::{StepInputs, step_inputs};
+use crate::train::tokens::{StepInputs, TokenBuilder};
 
 /// Per-dimension action bounds of a Box action space, for clipping what the env receives.
 #[derive(Debug)]
@@ -62,6 +62,7 @@ pub struct GroupActor {
     pub rows: usize,
     state: ActingState,
     collector: RolloutCollector,
+    tokens: TokenBuilder,
     inputs: Option<StepInputs>,
     episode_start: Tensor,
     pending: Option<Pending>,
@@ -77,6 +78,7 @@ impl GroupActor {
             rows,
             state: model.acting_state(rows as i64),
             collector: RolloutCollector::new(model.config().segment_len),
+            tokens: TokenBuilder::new(model.config(), rows),
             inputs: None,
             episode_start: Tensor::ones([rows as i64], (Kind::Bool, Device::Cpu)),
             pending: None,
@@ -94,8 +96,9 @@ impl GroupActor {
         model: &Model,
         obs: &million_env::Fields,
     ) -> anyhow::Result<()> {
-        self.inputs = Some(step_inputs(model.config(), obs)?);
-        self.episode_start = Tensor::ones([self.rows as i64], (Kind::Bool, Device::Cpu));
+        let starts = vec![true; self.rows];
+        self.inputs = Some(self.tokens.step_inputs(model.config(), obs, &starts)?);
+        self.episode_start = Tensor::from_slice(&starts);
         Ok(())
     }
 
@@ -144,7 +147,7 @@ impl GroupActor {
             .pending
             .take()
             .ok_or_else(|| anyhow::anyhow!("group {} got a step it did not send", self.group))?;
-        let ended = Tensor::from_slice(&step.ended());
+        let ended = step.ended();
         let mut batch = None;
         if record {
             batch = self.collector.push(StepRecord {
@@ -160,8 +163,8 @@ impl GroupActor {
                 behaviour_std: p.std,
             })?;
         }
-        self.inputs = Some(step_inputs(model.config(), &step.obs)?);
-        self.episode_start = ended;
+        self.inputs = Some(self.tokens.step_inputs(model.config(), &step.obs, &ended)?);
+        self.episode_start = Tensor::from_slice(&ended);
         Ok(batch)
     }
 }

@@ -1,10 +1,12 @@
 //! Observation batches from the env pool → the model's inputs: the token `[B, obs]` (the
-//! configured fields concatenated in order), the task ids `[B]` and the instruction flags `[B]`.
+//! configured fields concatenated in order, then the instruction slots when
+//! `model.instruction_words` > 0), the task ids `[B]` and the instruction flags `[B]`.
 
 use million_env::Fields;
 use tch::Tensor;
 
-use crate::config::ModelConfig;
+use crate::config::{ModelConfig, WORD_FIELD};
+use crate::train::instruction_slots::InstructionSlots;
 
 #[derive(Debug, thiserror::Error)]
 pub enum TokenError {
@@ -48,7 +50,51 @@ fn field_f32(fields: &Fields, key: &str) -> Result<Vec<f32>, TokenError> {
         })
 }
 
-pub fn step_inputs(cfg: &ModelConfig, fields: &Fields) -> Result<StepInputs, TokenError> {
+/// Builds the model's inputs step after step for a fixed set of env rows; it keeps the
+/// instruction slots, the one part of a token that depends on earlier steps.
+#[derive(Debug)]
+pub struct TokenBuilder {
+    slots: Option<InstructionSlots>,
+}
+
+impl TokenBuilder {
+    pub fn new(cfg: &ModelConfig, rows: usize) -> Self {
+        Self {
+            slots: (cfg.instruction_words > 0)
+                .then(|| InstructionSlots::new(rows, cfg.instruction_words, cfg.word_dim())),
+        }
+    }
+
+    /// The inputs of one step; `episode_start[r]` marks row r's first step of an episode.
+    pub fn step_inputs(
+        &mut self,
+        cfg: &ModelConfig,
+        fields: &Fields,
+        episode_start: &[bool],
+    ) -> Result<StepInputs, TokenError> {
+        let (mut token, task, instruction) = fields_token(cfg, fields)?;
+        if let Some(slots) = &mut self.slots {
+            let words = field_f32(fields, WORD_FIELD)?;
+            slots.observe(&words, &instruction, episode_start);
+            let (dim, from) = (cfg.obs_dim(), cfg.fields_dim());
+            for r in 0..fields.rows() {
+                token[r * dim + from..(r + 1) * dim].copy_from_slice(slots.row(r));
+            }
+        }
+        let rows = fields.rows() as i64;
+        Ok(StepInputs {
+            token: Tensor::from_slice(&token).view([rows, cfg.obs_dim() as i64]),
+            task: Tensor::from_slice(&task),
+            instruction: Tensor::from_slice(&instruction),
+        })
+    }
+}
+
+type RowsToken = (Vec<f32>, Vec<i64>, Vec<bool>);
+
+/// The token rows with the configured fields written (the slots left zero), task ids and
+/// instruction flags.
+fn fields_token(cfg: &ModelConfig, fields: &Fields) -> Result<RowsToken, TokenError> {
     let rows = fields.rows();
     let dim = cfg.obs_dim();
     let mut token = vec![0f32; rows * dim];
@@ -91,11 +137,7 @@ pub fn step_inputs(cfg: &ModelConfig, fields: &Fields) -> Result<StepInputs, Tok
             .collect(),
         None => vec![false; rows],
     };
-    Ok(StepInputs {
-        token: Tensor::from_slice(&token).view([rows as i64, dim as i64]),
-        task: Tensor::from_slice(&task),
-        instruction: Tensor::from_slice(&instruction),
-    })
+    Ok((token, task, instruction))
 }
 
 #[cfg(test)]
@@ -140,7 +182,9 @@ mod tests {
 
     #[test]
     fn tokens_follow_the_configured_order_and_convert_dtypes() {
-        let s = step_inputs(&cfg(), &fields(&[2, 0])).unwrap();
+        let s = TokenBuilder::new(&cfg(), 2)
+            .step_inputs(&cfg(), &fields(&[2, 0]), &[true, true])
+            .unwrap();
         let token = Vec::<f32>::try_from(s.token.flatten(0, -1)).unwrap();
         assert_eq!(token, vec![1.0, 2.0, 1.0, 3.0, 4.0, 0.0]);
         assert_eq!(Vec::<i64>::try_from(&s.task).unwrap(), vec![2, 0]);
@@ -152,11 +196,31 @@ mod tests {
 
     #[test]
     fn bad_task_ids_and_missing_fields_are_errors() {
-        let err = step_inputs(&cfg(), &fields(&[3, 0])).unwrap_err();
+        let step = |c: &ModelConfig, task: &[i64]| {
+            TokenBuilder::new(c, 2).step_inputs(c, &fields(task), &[true, true])
+        };
+        let err = step(&cfg(), &[3, 0]).unwrap_err();
         assert!(err.to_string().contains("task id 3"), "{err}");
         let mut c = cfg();
         c.observation[0].key = "state".into();
-        let err = step_inputs(&c, &fields(&[0, 0])).unwrap_err();
+        let err = step(&c, &[0, 0]).unwrap_err();
         assert!(err.to_string().contains("`state` is missing"), "{err}");
+    }
+
+    #[test]
+    fn instruction_slots_follow_the_fields() {
+        let c = ModelConfig {
+            instruction_words: 2,
+            ..cfg()
+        };
+        let mut b = TokenBuilder::new(&c, 2);
+        let first = b.step_inputs(&c, &fields(&[0, 0]), &[true, true]).unwrap();
+        let token = Vec::<f32>::try_from(first.token.flatten(0, -1)).unwrap();
+        // Row 0 is in an instruction phase: its word joins slot 0; row 1 is in a trial.
+        #[rustfmt::skip]
+        assert_eq!(token, vec![
+            1.0, 2.0, 1.0, /* slots */ 1.0, 1.0, 2.0, 0.0, 0.0, 0.0,
+            3.0, 4.0, 0.0, /* slots */ 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+        ]);
     }
 }

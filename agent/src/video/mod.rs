@@ -23,13 +23,13 @@ use std::time::Instant;
 use anyhow::Context;
 use million_env::{AutoresetMode, EnvClient, Frames, InfoBatch, Tensor as EnvTensor};
 use serde::Serialize;
-use tch::{Device, Kind, Tensor};
+use tch::Tensor;
 
 use crate::model::Model;
 use crate::report::slug;
 use crate::run_config::EvalSplit;
 use crate::train::actor::ActionBounds;
-use crate::train::tokens::step_inputs;
+use crate::train::tokens::TokenBuilder;
 use canvas::{Canvas, Caption, GifWriter};
 
 /// How videos are made.
@@ -211,7 +211,8 @@ pub async fn record_episode(
     };
     let task = text(&reset.info, "task_name");
     let mut state = model.acting_state(1);
-    let mut episode_start = Tensor::ones([1], (Kind::Bool, Device::Cpu));
+    let mut tokens = TokenBuilder::new(model.config(), 1);
+    let mut first_step = true;
     let mut obs = reset.obs.fields();
     let mut info = reset.info;
 
@@ -278,14 +279,15 @@ pub async fn record_episode(
         last_phase = phase;
 
         // Act deterministically and step.
-        let inputs = step_inputs(model.config(), &obs)?;
+        let inputs = tokens.step_inputs(model.config(), &obs, &[first_step])?;
+        let episode_start = Tensor::from_slice(&[first_step]);
         let out = model.act(&mut state, &inputs.token, &episode_start);
         let action = bounds.clip(&out.mean);
         let tensor = EnvTensor::from_f32(vec![1, action.len()], &action)
             .map_err(|e| anyhow::anyhow!("action tensor: {e}"))?;
         let step = client.step(handle, &tensor).await?;
         summary.agent_steps += 1;
-        episode_start = Tensor::zeros([1], (Kind::Bool, Device::Cpu));
+        first_step = false;
         info = step.info;
         obs = step.obs.fields();
         if last_phase == "trial" {
