@@ -71,7 +71,8 @@ pub struct ModelConfig {
     pub min_std: f64,
     /// Observation fields (keys of `observation`) whose features are normalised by their
     /// running mean and variance before the token's LayerNorm (not in the paper; empty = the
-    /// paper). See `model::obs_norm` and LEARNING.md.
+    /// paper). See `model::obs_norm` and LEARNING.md. It applies to the fields, not to the
+    /// words kept in the instruction slots.
     pub obs_norm: Vec<String>,
     /// Words of the latest instruction the agent keeps beside every token (0 = the paper: a
     /// word reaches later steps only through the GTrXL memory). With K > 0 the token ends with

@@ -276,6 +276,13 @@ pub fn run(
         .with_context(|| format!("{SCRIPT} not found (set MILLION_ROOT to the repository)"))?;
     let cfg = RunConfig::from_file(config)?;
     let agent = cfg.agent();
+    if agent.model.instruction_words > 0 {
+        bail!(
+            "{}: the PyTorch reference implements the paper's network, without the \
+             instruction slots; set model.instruction_words = 0 to compare",
+            config.display()
+        );
+    }
     let device = cfg.runtime.device();
     tch::manual_seed(cfg.env.agent_seed as i64);
     let mut learner = Learner::new(agent.clone(), device);

@@ -6,7 +6,6 @@ pub mod acting;
 pub mod gtrxl;
 pub mod instruction;
 pub mod obs_norm;
-pub mod observation;
 pub mod policy;
 pub mod popart;
 
