@@ -233,6 +233,24 @@ impl Learner {
         tch::no_grad(|| actor.copy(&self.vs))
     }
 
+    /// The reverse of [`Learner::copy_weights_to`]: takes an actor's network weights (and
+    /// Pop-Art statistics) as the learner's own, the target copy included. The optimiser's
+    /// moments and the multipliers stay as they are. Used when a run stops because an
+    /// evaluation of the actor's weights reached the target: those weights, not the newer
+    /// ones the learner went on to, are the run's result.
+    pub fn load_network_from(&mut self, actor: &VarStore) -> Result<(), tch::TchError> {
+        let source = actor.variables();
+        let mut vars = self.vs.variables();
+        for (name, from) in &source {
+            let to = vars.get_mut(name).ok_or_else(|| {
+                tch::TchError::Torch(format!("the learner has no variable {name}"))
+            })?;
+            tch::no_grad(|| to.copy_(from));
+        }
+        self.sync_target();
+        Ok(())
+    }
+
     /// One V-MPO update on `b` segments of `T` steps. Read top to bottom:
     ///
     /// ```text

@@ -90,7 +90,8 @@ pub struct TrainConfig {
     /// 0 = only the final checkpoint.
     pub checkpoint_interval: u64,
     pub log_interval: u64,
-    /// Stop early once the mean train-split eval success reaches this (> 1 = never).
+    /// Stop early once the mean train-split eval success reaches this (> 1 = never); the
+    /// evaluated weights are then the run's result (final checkpoint and evaluation).
     pub stop_at_success: f64,
 }
 

@@ -351,6 +351,52 @@ fn an_actor_store_receives_the_learner_weights() {
 }
 
 #[test]
+fn a_learner_takes_an_actors_weights_back_target_copy_included() {
+    use million::model::Model;
+    let mut cfg = small_agent(8, 8, 4);
+    cfg.vmpo.kl_reference = KlReference::Target;
+    let mut l = learner(cfg.clone(), 6);
+    let batch = bandit_batch(&l, 4);
+    let mut actor_vs = tch::nn::VarStore::new(Device::Cpu);
+    let actor = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
+    // The actor holds the weights before an update; the learner moves on, then takes them back.
+    l.copy_weights_to(&mut actor_vs).unwrap();
+    let before = tch::no_grad(|| {
+        actor
+            .forward_segment(
+                &batch.obs,
+                &batch.episode_start,
+                &batch.memory,
+                &batch.memory_len,
+            )
+            .mean
+    });
+    l.update(&batch).unwrap();
+    let moved = |l: &Learner| {
+        tch::no_grad(|| {
+            l.model()
+                .forward_segment(
+                    &batch.obs,
+                    &batch.episode_start,
+                    &batch.memory,
+                    &batch.memory_len,
+                )
+                .mean
+        })
+    };
+    assert!(!moved(&l).equal(&before), "the update changed the network");
+    l.load_network_from(&actor_vs).unwrap();
+    assert!(moved(&l).equal(&before));
+    let vars = l.var_store().variables();
+    for (name, var) in &vars {
+        if let Some(source) = name.strip_prefix("target.") {
+            assert!(var.equal(&vars[source]), "{name} follows the network");
+        }
+    }
+    assert_eq!(l.updates(), 1, "the counters stay");
+}
+
+#[test]
 fn normalised_observations_change_at_target_syncs_and_travel_to_actors() {
     use million::model::Model;
     let mut cfg = small_agent(8, 8, 4);

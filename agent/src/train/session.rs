@@ -27,6 +27,9 @@ use crate::train::outcomes::{EpisodeReturns, SuccessTable, TrialTracker};
 use crate::train::servers::{EnvAccess, client_config, start_local_servers};
 use crate::train::weights::thread_cpu_seconds;
 
+/// The stop reason of a run whose train-split evaluation reached `train.stop_at_success`.
+const TARGET_REACHED: &str = "target success reached";
+
 /// Metadata key under which checkpoints keep the full run config (TOML).
 pub const RUN_CONFIG_KEY: &str = "run_config";
 
@@ -241,7 +244,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let mut groups: Vec<GroupActor> = (0..pool.num_groups())
         .map(|g| GroupActor::new(&model, &pool, g))
         .collect();
-    let result: anyhow::Result<()> = async {
+    let result: anyhow::Result<&'static str> = async {
         for reset in pool.reset_all().await? {
             groups[reset.group].observe_reset(&model, &reset.obs)?;
         }
@@ -348,7 +351,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                         r.split, r.mean, r.first_trial
                     ));
                     if r.split == "train" && r.mean >= cfg.train.stop_at_success {
-                        stop_reason = Some("target success reached");
+                        stop_reason = Some(TARGET_REACHED);
                     }
                 }
                 if let Some(w) = metrics.as_mut() {
@@ -383,7 +386,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         for gi in 0..groups.len() {
             pool.recv(gi).await?;
         }
-        Ok(())
+        Ok(stop_reason.unwrap_or(""))
     }
     .await;
     let actor_cpu_s = thread_cpu_seconds() - cpu_start;
@@ -395,25 +398,33 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         .join()
         .map_err(|_| anyhow::anyhow!("the learner thread panicked"))?;
     let progress = shared.progress.lock().expect("lock").clone();
-    result?;
-    let updates = done.learner.updates();
+    let stop_reason = result?;
+    let mut learner = done.learner;
+    // The run stopped right after an evaluation of the actor's weights reached the target; the
+    // learner has gone on updating since. Those evaluated weights are the result (the final
+    // checkpoint and evaluation), else the final figures could fall below the target that
+    // ended the run (PointGoal: 0.96 at the stop, 0.79 for the learner's newer weights).
+    let target_reached = stop_reason == TARGET_REACHED;
+    if target_reached {
+        learner
+            .load_network_from(&actor_vs)
+            .context("taking the evaluated weights as the result")?;
+    }
+    let updates = learner.updates();
 
     let mut final_checkpoint = None;
     if let Some(dir) = &opts.run_dir {
         let path = checkpoint_path(dir, agent_steps);
-        checkpoint::save(
-            &path,
-            &done.learner,
-            agent_steps,
-            done.buffer_counters,
-            &extra,
-        )?;
+        checkpoint::save(&path, &learner, agent_steps, done.buffer_counters, &extra)?;
         final_checkpoint = Some(path);
     }
     let mut final_eval = vec![];
     if opts.evaluate {
-        // The final evaluation uses the learner's newest weights.
-        done.learner.copy_weights_to(&mut actor_vs)?;
+        // The final evaluation uses the learner's newest weights (the evaluated ones when
+        // they reached the target: then the actor holds them already).
+        if !target_reached {
+            learner.copy_weights_to(&mut actor_vs)?;
+        }
         let mut s = Scalars::new();
         for mut ev in evaluators {
             let r = ev.run(&model).await?;
