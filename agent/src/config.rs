@@ -143,6 +143,18 @@ impl ModelConfig {
             .map_or(0, |f| f.size)
     }
 
+    /// Where the `word` field lies in the token: (offset, width); None without one.
+    pub fn word_span(&self) -> Option<(usize, usize)> {
+        let mut offset = 0;
+        for f in &self.observation {
+            if f.key == WORD_FIELD {
+                return Some((offset, f.size));
+            }
+            offset += f.size;
+        }
+        None
+    }
+
     /// Length of the instruction slots at the token's end: K × (1 + word width).
     pub fn instruction_dim(&self) -> usize {
         self.instruction_words * (1 + self.word_dim())
@@ -541,6 +553,8 @@ mod tests {
         let c = AgentConfig::from_toml_str("[model]\ninstruction_words = 12\n").unwrap();
         assert_eq!(c.model.fields_dim(), 91);
         assert_eq!(c.model.obs_dim(), 91 + 12 * 51);
+        // state (39) · word (50) · time · phase: the word follows the state.
+        assert_eq!(c.model.word_span(), Some((39, 50)));
         let err = AgentConfig::from_toml_str(
             "[model]\ninstruction_words = 12\nobservation = [{ key = \"state\", size = 39 }]\n",
         )

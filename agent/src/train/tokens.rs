@@ -5,7 +5,7 @@
 use million_env::Fields;
 use tch::Tensor;
 
-use crate::config::{ModelConfig, WORD_FIELD};
+use crate::config::ModelConfig;
 use crate::train::instruction_slots::InstructionSlots;
 
 #[derive(Debug, thiserror::Error)]
@@ -74,11 +74,18 @@ impl TokenBuilder {
     ) -> Result<StepInputs, TokenError> {
         let (mut token, task, instruction) = fields_token(cfg, fields)?;
         if let Some(slots) = &mut self.slots {
-            let words = field_f32(fields, WORD_FIELD)?;
-            slots.observe(&words, &instruction, episode_start);
+            // The word is in the token already (model validation requires the field): read
+            // it back rather than decode the field a second time.
             let (dim, from) = (cfg.obs_dim(), cfg.fields_dim());
-            for r in 0..fields.rows() {
-                token[r * dim + from..(r + 1) * dim].copy_from_slice(slots.row(r));
+            let (offset, width) = cfg.word_span().expect("slots need a word field");
+            let words: Vec<f32> = token
+                .chunks_exact(dim)
+                .flat_map(|row| &row[offset..offset + width])
+                .copied()
+                .collect();
+            slots.observe(&words, &instruction, episode_start);
+            for (r, row) in token.chunks_exact_mut(dim).enumerate() {
+                row[from..].copy_from_slice(slots.row(r));
             }
         }
         let rows = fields.rows() as i64;
