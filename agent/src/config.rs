@@ -137,10 +137,7 @@ impl ModelConfig {
 
     /// Width of one word (the `word` field's size; 0 without one).
     pub fn word_dim(&self) -> usize {
-        self.observation
-            .iter()
-            .find(|f| f.key == WORD_FIELD)
-            .map_or(0, |f| f.size)
+        self.word_span().map_or(0, |(_, width)| width)
     }
 
     /// Where the `word` field lies in the token: (offset, width); None without one.

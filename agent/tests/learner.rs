@@ -319,6 +319,20 @@ fn loading_a_checkpoint_of_another_model_or_a_broken_file_fails_clearly() {
     assert!(checkpoint::load(&dir.path().join("missing"), &mut b).is_err());
 }
 
+/// The policy means a model gives for the batch's segments (no gradient).
+fn policy_mean(model: &million::model::Model, batch: &SegmentBatch) -> Tensor {
+    tch::no_grad(|| {
+        model
+            .forward_segment(
+                &batch.obs,
+                &batch.episode_start,
+                &batch.memory,
+                &batch.memory_len,
+            )
+            .mean
+    })
+}
+
 #[test]
 fn an_actor_store_receives_the_learner_weights() {
     use million::model::Model;
@@ -329,17 +343,7 @@ fn an_actor_store_receives_the_learner_weights() {
     tch::manual_seed(1234);
     let mut actor_vs = tch::nn::VarStore::new(Device::Cpu);
     let actor = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
-    let run = |m: &Model| {
-        tch::no_grad(|| {
-            m.forward_segment(
-                &batch.obs,
-                &batch.episode_start,
-                &batch.memory,
-                &batch.memory_len,
-            )
-            .mean
-        })
-    };
+    let run = |m: &Model| policy_mean(m, &batch);
     assert!(!run(&actor).equal(&run(l.model())));
     l.copy_weights_to(&mut actor_vs).unwrap();
     assert!(run(&actor).equal(&run(l.model())));
@@ -361,29 +365,9 @@ fn a_learner_takes_an_actors_weights_back_target_copy_included() {
     let actor = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
     // The actor holds the weights before an update; the learner moves on, then takes them back.
     l.copy_weights_to(&mut actor_vs).unwrap();
-    let before = tch::no_grad(|| {
-        actor
-            .forward_segment(
-                &batch.obs,
-                &batch.episode_start,
-                &batch.memory,
-                &batch.memory_len,
-            )
-            .mean
-    });
+    let before = policy_mean(&actor, &batch);
     l.update(&batch).unwrap();
-    let moved = |l: &Learner| {
-        tch::no_grad(|| {
-            l.model()
-                .forward_segment(
-                    &batch.obs,
-                    &batch.episode_start,
-                    &batch.memory,
-                    &batch.memory_len,
-                )
-                .mean
-        })
-    };
+    let moved = |l: &Learner| policy_mean(l.model(), &batch);
     assert!(!moved(&l).equal(&before), "the update changed the network");
     l.load_network_from(&actor_vs).unwrap();
     assert!(moved(&l).equal(&before));

@@ -244,7 +244,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let mut groups: Vec<GroupActor> = (0..pool.num_groups())
         .map(|g| GroupActor::new(&model, &pool, g))
         .collect();
-    let result: anyhow::Result<&'static str> = async {
+    let result: anyhow::Result<Option<&'static str>> = async {
         for reset in pool.reset_all().await? {
             groups[reset.group].observe_reset(&model, &reset.obs)?;
         }
@@ -386,7 +386,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         for gi in 0..groups.len() {
             pool.recv(gi).await?;
         }
-        Ok(stop_reason.unwrap_or(""))
+        Ok(stop_reason)
     }
     .await;
     let actor_cpu_s = thread_cpu_seconds() - cpu_start;
@@ -404,7 +404,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     // learner has gone on updating since. Those evaluated weights are the result (the final
     // checkpoint and evaluation), else the final figures could fall below the target that
     // ended the run (PointGoal: 0.96 at the stop, 0.79 for the learner's newer weights).
-    let target_reached = stop_reason == TARGET_REACHED;
+    let target_reached = stop_reason == Some(TARGET_REACHED);
     if target_reached {
         learner
             .load_network_from(&actor_vs)

@@ -54,15 +54,21 @@ fn field_f32(fields: &Fields, key: &str) -> Result<Vec<f32>, TokenError> {
 /// instruction slots, the one part of a token that depends on earlier steps.
 #[derive(Debug)]
 pub struct TokenBuilder {
-    slots: Option<InstructionSlots>,
+    /// The slots and where the word lies in a token (offset, width); None without slots.
+    slots: Option<(InstructionSlots, (usize, usize))>,
 }
 
 impl TokenBuilder {
     pub fn new(cfg: &ModelConfig, rows: usize) -> Self {
-        Self {
-            slots: (cfg.instruction_words > 0)
-                .then(|| InstructionSlots::new(rows, cfg.instruction_words, cfg.word_dim())),
-        }
+        // Config validation refuses slots without a word field, so the span is there.
+        let slots = match cfg.word_span() {
+            Some(span) if cfg.instruction_words > 0 => Some((
+                InstructionSlots::new(rows, cfg.instruction_words, span.1),
+                span,
+            )),
+            _ => None,
+        };
+        Self { slots }
     }
 
     /// The inputs of one step; `episode_start[r]` marks row r's first step of an episode.
@@ -73,11 +79,10 @@ impl TokenBuilder {
         episode_start: &[bool],
     ) -> Result<StepInputs, TokenError> {
         let (mut token, task, instruction) = fields_token(cfg, fields)?;
-        if let Some(slots) = &mut self.slots {
-            // The word is in the token already (model validation requires the field): read
-            // it back rather than decode the field a second time.
-            let (dim, from) = (cfg.obs_dim(), cfg.fields_dim());
-            let (offset, width) = cfg.word_span().expect("slots need a word field");
+        if let Some((slots, (offset, width))) = &mut self.slots {
+            // The word is in the token already: read it back rather than decode the field a
+            // second time.
+            let (dim, from, offset, width) = (cfg.obs_dim(), cfg.fields_dim(), *offset, *width);
             let words: Vec<f32> = token
                 .chunks_exact(dim)
                 .flat_map(|row| &row[offset..offset + width])
