@@ -384,21 +384,23 @@ def bootstrapped_returns(
     gamma: float,
     lam: float,
 ) -> tuple[Tensor, Tensor]:
-    """n-step (λ = 1) or λ-returns over a segment and the mask of trainable steps."""
+    """n-step (λ = 1) or λ-returns over a segment and the mask of trainable steps. `values`
+    has T columns (the last step only bootstraps) or T + 1 (V(s_T) after the segment)."""
     t_len = rewards.shape[1]
     values = values.detach()
     cut = truncated & ~terminated
     continues = (~terminated).to(rewards.dtype)
-    nxt = values[:, t_len - 1]
-    columns = [nxt]
-    for t in range(t_len - 2, -1, -1):
+    learned = t_len if values.shape[1] > t_len else t_len - 1
+    nxt = values[:, -1]
+    columns = [] if learned == t_len else [nxt]
+    for t in range(learned - 1, -1, -1):
         ahead = values[:, t + 1] * (1.0 - lam) + nxt * lam if lam < 1.0 else nxt
         through = rewards[:, t] + continues[:, t] * ahead * gamma
         nxt = torch.where(cut[:, t], values[:, t], through)
         columns.append(nxt)
     columns.reverse()
     trainable = ~cut
-    trainable[:, t_len - 1] = False
+    trainable[:, learned:] = False
     return torch.stack(columns, 1), trainable
 
 
@@ -444,6 +446,8 @@ class Batch:
     task: Tensor
     behaviour_mean: Tensor
     behaviour_std: Tensor
+    bootstrap_obs: Tensor
+    bootstrap_start: Tensor
     memory: Tensor
     memory_len: Tensor
 
@@ -518,17 +522,34 @@ class Learner:
         a = self.cfg["model"]["action_dim"]
         popart = self.model.popart
 
-        # 1. Forward every step from the memory stored at its segment's start.
-        out = self.model(b.obs, b.episode_start, b.memory, b.memory_len)
+        # 1. Forward every step from the memory stored at its segment's start; with
+        #    learn_last_step the state after the segment runs as step T, for its value alone.
+        if v["learn_last_step"]:
+            out = self.model(
+                torch.cat([b.obs, b.bootstrap_obs.unsqueeze(1)], 1),
+                torch.cat([b.episode_start, b.bootstrap_start.unsqueeze(1)], 1),
+                b.memory,
+                b.memory_len,
+            )
+            after_features = out.value_features[:, t_len]
+            out = SegmentOutput(
+                out.mean[:, :t_len], out.std[:, :t_len], out.value_features[:, :t_len]
+            )
+        else:
+            out = self.model(b.obs, b.episode_start, b.memory, b.memory_len)
         features = out.value_features.reshape(n, -1)
         task = b.task.reshape(n)
 
         # 2. Targets bootstrapped from the current (unnormalised) value.
         with torch.no_grad():
-            values = popart.unnormalise(popart.normalised(features, task), task)
+            values = popart.unnormalise(popart.normalised(features, task), task).view(n_seg, t_len)
+            if v["learn_last_step"]:
+                last_task = b.task[:, t_len - 1]
+                after = popart.unnormalise(popart.normalised(after_features, last_task), last_task)
+                values = torch.cat([values, after.unsqueeze(1)], 1)
         returns, trainable = bootstrapped_returns(
             b.rewards,
-            values.view(n_seg, t_len),
+            values,
             b.terminated,
             b.truncated,
             v["gamma"],

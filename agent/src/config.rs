@@ -237,6 +237,11 @@ pub struct VmpoConfig {
     /// λ of the λ-return targets: 1 = the original's n-step returns to the segment's end;
     /// below 1 the advantages become GAE(λ), with less variance from later actions [S].
     pub lambda: f64,
+    /// Learn from each segment's last step too [S]. Off (the original), step T−1 has no
+    /// successor in the segment: it only bootstraps, and 1 in T of all transitions is never
+    /// learned from. On, the learner runs one more step, the observation after the segment
+    /// (stored with it), whose value step T−1 bootstraps from; that step enters no loss.
+    pub learn_last_step: bool,
 }
 
 /// What the decoupled KL terms compare the learned policy with.
@@ -275,6 +280,7 @@ impl Default for VmpoConfig {
             multiplier_lr: None,
             kl_reference: KlReference::Behaviour,
             lambda: 1.0,
+            learn_last_step: false,
         }
     }
 }

@@ -9,9 +9,9 @@ use crate::algo::buffer::SegmentBatch;
 use crate::algo::returns::bootstrapped_returns;
 use crate::algo::vmpo;
 use crate::config::{AgentConfig, KlReference, MultiplierForm, VmpoConfig};
-use crate::model::Model;
 use crate::model::policy::gaussian_log_prob;
 use crate::model::popart::{PopArtState, PopArtSummary};
+use crate::model::{Model, SegmentOutput};
 use crate::optim::Adam;
 
 /// The Lagrange multipliers η, α_μ, α_Σ as trainable scalars. In clamp form the variables are
@@ -261,8 +261,11 @@ impl Learner {
     ///                   own episode (episode_start), so no step attends across episodes
     ///  returns:         G_t = r_t + γ (1 − terminated_t) [(1 − λ) V(s_{t+1}) + λ G_{t+1}],
     ///                   G_{T-1} := V(s_{T-1})   (λ = 1: the original's n-step returns)
+    ///                   with learn_last_step, s_T (stored after the segment) runs as one
+    ///                   more step and G_{T-1} = r_{T-1} + γ (1 − terminated) V(s_T)
     ///                   a truncated step t (final obs not in the segment): G_t := V(s_t)
-    ///  value_mask:      every step but T-1 and truncated ones  (they only bootstrap)
+    ///  value_mask:      every step but T-1 (unless learn_last_step) and truncated ones
+    ///                   (they only bootstrap)
     ///  policy_mask:     value_mask minus instruction-phase steps (no reward, action ignored)
     /// ```
     ///
@@ -313,6 +316,34 @@ impl Learner {
         Ok(self.metrics(&l, loss_value))
     }
 
+    /// The segment forward of step 1. With `vmpo.learn_last_step` the stored observation after
+    /// the segment runs as step T, whose value features come back apart (`[B, H]`); the
+    /// outputs are those of steps 0..T, which the extra step cannot change (it is later). Its
+    /// farthest memory row lies at distance m + T, one past the relative bias table, and
+    /// shares the bias of m + T − 1 (`TransformerLayer::relative_bias` clamps).
+    fn forward_learning(&self, b: &SegmentBatch, t_len: i64) -> (SegmentOutput, Option<Tensor>) {
+        if !self.cfg.vmpo.learn_last_step {
+            let out =
+                self.model
+                    .forward_segment(&b.obs, &b.episode_start, &b.memory, &b.memory_len);
+            return (out, None);
+        }
+        let obs = Tensor::cat(&[&b.obs, &b.bootstrap_obs.unsqueeze(1)], 1);
+        let starts = Tensor::cat(&[&b.episode_start, &b.bootstrap_start.unsqueeze(1)], 1);
+        let out = self
+            .model
+            .forward_segment(&obs, &starts, &b.memory, &b.memory_len);
+        let steps = |t: &Tensor| t.narrow(1, 0, t_len);
+        let bootstrap = out.value_features.select(1, t_len);
+        let out = SegmentOutput {
+            mean: steps(&out.mean),
+            std: steps(&out.std),
+            value_features: steps(&out.value_features),
+            core: out.core,
+        };
+        (out, Some(bootstrap))
+    }
+
     /// Steps 1–6 of [`Learner::update`]: the loss terms, with the Pop-Art statistics moved.
     fn losses(&mut self, batch: &SegmentBatch) -> Result<Losses, LearnerError> {
         let device = self.vs.device();
@@ -335,16 +366,27 @@ impl Learner {
         let flat = |t: &Tensor| t.reshape([n]);
         let flat_actions = |t: &Tensor| t.reshape([n, a_dim]);
 
-        // 1. Forward every step from the memory stored at its segment's start.
-        let out = self
-            .model
-            .forward_segment(&b.obs, &b.episode_start, &b.memory, &b.memory_len);
+        // 1. Forward every step from the memory stored at its segment's start (and, with
+        //    `learn_last_step`, the observation after the segment, for its value alone).
+        let (out, bootstrap_features) = self.forward_learning(&b, t_len);
         let hidden = *out.value_features.size().last().expect("value features");
         let features = out.value_features.reshape([n, hidden]);
         let task = flat(&b.task);
 
         // 2. Targets: n-step (λ = 1) or λ-returns bootstrapped from the current value.
-        let values = tch::no_grad(|| self.model.value(&out.value_features, &b.task));
+        let values = tch::no_grad(|| {
+            let values = self.model.value(&out.value_features, &b.task);
+            match &bootstrap_features {
+                // The state after the segment continues the last step's episode (and task)
+                // whenever its value is used: otherwise the last step ended its episode.
+                Some(f) => {
+                    let last_task = b.task.select(1, t_len - 1);
+                    let after = self.model.value(f, &last_task).unsqueeze(1);
+                    Tensor::cat(&[values, after], 1)
+                }
+                None => values,
+            }
+        });
         let returns = bootstrapped_returns(
             &b.rewards,
             &values,

@@ -10,7 +10,8 @@
 //!   [B])` → behaviour mean/std; sample with [`model::policy::sample_actions`] (store the
 //!   unclipped sample, clip only for the env). At each segment start hand
 //!   `state.segment_start_memory()` to [`algo::rollout::RolloutCollector::begin`], push one
-//!   [`algo::rollout::StepRecord`] per step; every T steps it yields a
+//!   [`algo::rollout::StepRecord`] per step with the observation it led to
+//!   ([`algo::rollout::NextObservation`]); every T steps it yields a
 //!   [`algo::buffer::SegmentBatch`] for [`algo::buffer::SegmentBuffer::push_batch`].
 //! - Learning: `SegmentBuffer::sample` (throttled by the replay ratio) → `Learner::update`.
 //! - [`checkpoint::save`] / [`checkpoint::load`]: one atomic safetensors file.

@@ -3,7 +3,7 @@
 mod common;
 
 use common::{max_abs_diff, randomise_relative_bias, small_model};
-use million::algo::rollout::{RolloutCollector, StepRecord};
+use million::algo::rollout::{NextObservation, RolloutCollector, StepRecord};
 use million::config::PopArtConfig;
 use million::model::Model;
 use million::model::policy::sample_actions;
@@ -34,30 +34,41 @@ fn check_acting_equals_learning(segment_len: usize, memory_len: usize) {
             || (slot == 2 && step == 2 * t_len)
             || (slot == 3 && step == t_len - 1)
     };
+    let observations: Vec<Tensor> = (0..=3 * t_len)
+        .map(|_| Tensor::randn([slots, 10], (Kind::Float, Device::Cpu)))
+        .collect();
+    let starts: Vec<Tensor> = (0..=3 * t_len)
+        .map(|step| Tensor::from_slice(&(0..slots).map(|s| starts_at(s, step)).collect::<Vec<_>>()))
+        .collect();
     for step in 0..3 * t_len {
         if collector.is_at_segment_start() {
             let (memory, len) = state.segment_start_memory();
             collector.begin(memory, len);
         }
-        let obs = Tensor::randn([slots, 10], (Kind::Float, Device::Cpu));
-        let episode_start =
-            Tensor::from_slice(&(0..slots).map(|s| starts_at(s, step)).collect::<Vec<_>>());
-        let out = model.act(&mut state, &obs, &episode_start);
+        let (obs, episode_start) = (&observations[step as usize], &starts[step as usize]);
+        let out = model.act(&mut state, obs, episode_start);
         let zeros = Tensor::zeros([slots], (Kind::Float, Device::Cpu));
         let done = zeros.to_kind(Kind::Bool);
+        let next = NextObservation {
+            obs: &observations[step as usize + 1],
+            episode_start: &starts[step as usize + 1],
+        };
         let batch = collector
-            .push(StepRecord {
-                action: sample_actions(&out.mean, &out.std),
-                obs,
-                episode_start,
-                reward: zeros,
-                terminated: done.shallow_clone(),
-                truncated: done.shallow_clone(),
-                instruction: done,
-                task: Tensor::zeros([slots], (Kind::Int64, Device::Cpu)),
-                behaviour_mean: out.mean,
-                behaviour_std: out.std,
-            })
+            .push(
+                StepRecord {
+                    action: sample_actions(&out.mean, &out.std),
+                    obs: obs.shallow_clone(),
+                    episode_start: episode_start.shallow_clone(),
+                    reward: zeros,
+                    terminated: done.shallow_clone(),
+                    truncated: done.shallow_clone(),
+                    instruction: done,
+                    task: Tensor::zeros([slots], (Kind::Int64, Device::Cpu)),
+                    behaviour_mean: out.mean,
+                    behaviour_std: out.std,
+                },
+                next,
+            )
             .unwrap();
         batches.extend(batch);
     }
@@ -77,6 +88,24 @@ fn check_acting_equals_learning(segment_len: usize, memory_len: usize) {
             assert!(max_abs_diff(prev, &b.memory) < 1e-5, "segment {i} memory");
         }
         previous_next_memory = Some(out.core.next_memory());
+        // The state after the segment is kept with it, and running it as one more step
+        // (`vmpo.learn_last_step`) leaves the segment's own outputs as they acted.
+        let after = (i as i64 + 1) * t_len;
+        assert!(max_abs_diff(&b.bootstrap_obs, &observations[after as usize]) == 0.0);
+        assert!(b.bootstrap_start.equal(&starts[after as usize]));
+        let extended = tch::no_grad(|| {
+            model.forward_segment(
+                &Tensor::cat(&[&b.obs, &b.bootstrap_obs.unsqueeze(1)], 1),
+                &Tensor::cat(&[&b.episode_start, &b.bootstrap_start.unsqueeze(1)], 1),
+                &b.memory,
+                &b.memory_len,
+            )
+        });
+        let diff = max_abs_diff(&extended.mean.narrow(1, 0, t_len), &b.behaviour_mean);
+        assert!(
+            diff < 1e-5,
+            "segment {i} with the state after it: mean {diff}"
+        );
     }
     // Slot 1 reset at step 3 of segment 1: its memory for segment 2 keeps min(m, T−3) rows.
     let expected = (memory_len as i64).min(t_len - 3);
@@ -98,18 +127,24 @@ fn a_collector_refuses_steps_before_the_segment_memory() {
     let mut c = RolloutCollector::new(2);
     let z = Tensor::zeros([1], (Kind::Float, Device::Cpu));
     let err = c
-        .push(StepRecord {
-            obs: z.shallow_clone(),
-            episode_start: z.shallow_clone(),
-            action: z.shallow_clone(),
-            reward: z.shallow_clone(),
-            terminated: z.shallow_clone(),
-            truncated: z.shallow_clone(),
-            instruction: z.shallow_clone(),
-            task: z.shallow_clone(),
-            behaviour_mean: z.shallow_clone(),
-            behaviour_std: z,
-        })
+        .push(
+            StepRecord {
+                obs: z.shallow_clone(),
+                episode_start: z.shallow_clone(),
+                action: z.shallow_clone(),
+                reward: z.shallow_clone(),
+                terminated: z.shallow_clone(),
+                truncated: z.shallow_clone(),
+                instruction: z.shallow_clone(),
+                task: z.shallow_clone(),
+                behaviour_mean: z.shallow_clone(),
+                behaviour_std: z.shallow_clone(),
+            },
+            NextObservation {
+                obs: &z,
+                episode_start: &z,
+            },
+        )
         .unwrap_err();
     assert!(err.to_string().contains("memory"));
 }

@@ -23,7 +23,7 @@ fn repo() -> PathBuf {
 }
 
 /// Quickstart with the state field normalised, λ-returns, debiased Pop-Art over 3 tasks, log-form multipliers with their
-/// own step size and a target network synced after every update.
+/// own step size, a target network synced after every update, and the last step learned from.
 fn variant_config(dir: &Path) -> PathBuf {
     let text = std::fs::read_to_string(repo().join("configs/quickstart.toml")).unwrap();
     let mut cfg: toml::Table = text.parse().unwrap();
@@ -41,6 +41,7 @@ fn variant_config(dir: &Path) -> PathBuf {
     );
     set("popart", "debias", true.into());
     set("vmpo", "lambda", 0.9.into());
+    set("vmpo", "learn_last_step", true.into());
     set("vmpo", "multiplier_form", "log".into());
     set("vmpo", "multiplier_lr", 0.01.into());
     set("vmpo", "kl_reference", "target".into());

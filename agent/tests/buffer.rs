@@ -21,6 +21,8 @@ fn segment(id: i64) -> Segment {
         task: Tensor::full([2], id, (Kind::Int64, Device::Cpu)),
         behaviour_mean: f(&[2, 1]),
         behaviour_std: f(&[2, 1]),
+        bootstrap_obs: Tensor::full([3], id as f64, (Kind::Float, Device::Cpu)),
+        bootstrap_start: Tensor::from(false),
         memory: Tensor::full([1, 4, 2], id as f64, (Kind::Float, Device::Cpu)),
         memory_len: Tensor::from(id),
     }

@@ -36,7 +36,7 @@ fn bandit_batch(learner: &Learner, b: i64) -> SegmentBatch {
         .sum_dim_intlist(-1, false, Kind::Float);
     let none = || Tensor::zeros([b, t], (Kind::Bool, Device::Cpu));
     SegmentBatch {
-        obs,
+        obs: obs.shallow_clone(),
         actions,
         rewards,
         terminated: none(),
@@ -46,6 +46,8 @@ fn bandit_batch(learner: &Learner, b: i64) -> SegmentBatch {
         task: Tensor::zeros([b, t], (Kind::Int64, Device::Cpu)).fill_(1),
         behaviour_mean: out.mean,
         behaviour_std: out.std,
+        bootstrap_obs: obs.select(1, 0),
+        bootstrap_start: Tensor::zeros([b], (Kind::Bool, Device::Cpu)),
         memory,
         memory_len,
     }
@@ -81,6 +83,47 @@ fn one_update_counts_the_right_steps_and_moves_the_weights() {
     assert!((w1 - &w0).abs().max().double_value(&[]) > 0.0);
     assert_eq!(l.model().config(), &before);
     assert_eq!(l.updates(), 1);
+}
+
+#[test]
+fn learn_last_step_trains_the_last_step_on_the_value_of_the_state_after_it() {
+    let value_loss = |l: &mut Learner, b: &SegmentBatch| {
+        let m = l.loss_terms(b).unwrap();
+        (m.value_steps, m.value_loss)
+    };
+    let mut cfg = small_agent(8, 8, 4);
+    let mut off = learner(cfg.clone(), 1);
+    cfg.vmpo.learn_last_step = true;
+    let mut on = learner(cfg, 1);
+    let batch = bandit_batch(&on, 4);
+    let _ = batch.truncated.get(1).narrow(0, 4, 1).fill_(1);
+    let elsewhere = SegmentBatch {
+        bootstrap_obs: batch.bootstrap_obs.randn_like() * 5.0,
+        ..batch.to_device(Device::Cpu)
+    };
+    // Off: the last step of each segment only bootstraps; the state after it is unused.
+    let (steps, loss) = value_loss(&mut off, &batch);
+    assert_eq!(steps, 4 * 7 - 1);
+    assert_eq!(value_loss(&mut off, &elsewhere).1, loss);
+    // On: all 8 steps but the truncated one learn, and the last ones' targets come from the
+    // state after the segment.
+    let (steps, loss) = value_loss(&mut on, &batch);
+    assert_eq!(steps, 4 * 8 - 1);
+    assert_ne!(value_loss(&mut on, &elsewhere).1, loss);
+    // ... unless each segment's last step ended its episode: then the state after it belongs
+    // to the next episode and is unused again.
+    let ended = |b: &SegmentBatch| {
+        let terminated = b.terminated.copy();
+        let _ = terminated.narrow(1, 7, 1).fill_(1);
+        SegmentBatch {
+            terminated,
+            bootstrap_start: b.bootstrap_start.ones_like(),
+            ..b.to_device(Device::Cpu)
+        }
+    };
+    let (steps, loss) = value_loss(&mut on, &ended(&batch));
+    assert_eq!(steps, 4 * 8 - 1);
+    assert_eq!(value_loss(&mut on, &ended(&elsewhere)).1, loss);
 }
 
 #[test]

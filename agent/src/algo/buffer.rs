@@ -26,6 +26,11 @@ pub struct Segment {
     /// `[T, A]` behaviour distribution at acting time.
     pub behaviour_mean: Tensor,
     pub behaviour_std: Tensor,
+    /// `[obs]` the observation after the last step (the next segment's first) and `[]` bool:
+    /// it starts a new episode. The last step bootstraps from its value when
+    /// `vmpo.learn_last_step` is on; otherwise it is unused.
+    pub bootstrap_obs: Tensor,
+    pub bootstrap_start: Tensor,
     /// `[L, m, d]` memory at the segment start and its valid length (i64 scalar).
     pub memory: Tensor,
     pub memory_len: Tensor,
@@ -45,6 +50,8 @@ pub struct SegmentBatch {
     pub task: Tensor,
     pub behaviour_mean: Tensor,
     pub behaviour_std: Tensor,
+    pub bootstrap_obs: Tensor,
+    pub bootstrap_start: Tensor,
     pub memory: Tensor,
     pub memory_len: Tensor,
 }
@@ -73,6 +80,8 @@ impl SegmentBatch {
             task: st(|s| &s.task, 0),
             behaviour_mean: st(|s| &s.behaviour_mean, 0),
             behaviour_std: st(|s| &s.behaviour_std, 0),
+            bootstrap_obs: st(|s| &s.bootstrap_obs, 0),
+            bootstrap_start: st(|s| &s.bootstrap_start, 0),
             memory: st(|s| &s.memory, 1),
             memory_len: st(|s| &s.memory_len, 0),
         }
@@ -92,6 +101,8 @@ impl SegmentBatch {
                 task: self.task.get(i),
                 behaviour_mean: self.behaviour_mean.get(i),
                 behaviour_std: self.behaviour_std.get(i),
+                bootstrap_obs: self.bootstrap_obs.get(i),
+                bootstrap_start: self.bootstrap_start.get(i),
                 memory: self.memory.select(1, i),
                 memory_len: self.memory_len.get(i),
             })
@@ -111,6 +122,8 @@ impl SegmentBatch {
             task: d(&self.task),
             behaviour_mean: d(&self.behaviour_mean),
             behaviour_std: d(&self.behaviour_std),
+            bootstrap_obs: d(&self.bootstrap_obs),
+            bootstrap_start: d(&self.bootstrap_start),
             memory: d(&self.memory),
             memory_len: d(&self.memory_len),
         }

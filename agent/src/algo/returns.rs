@@ -9,6 +9,8 @@
 //! (its final observation is not in the segment because the env autoreset) — is not trained;
 //! its own value sg(V(s_t)) stands in as the return of the state, so the step before it
 //! bootstraps from a state of its own episode. Terminated steps return just their reward.
+//! Given one value more than there are steps (`V(s_T)`, the state after the segment), the last
+//! step's successor is known: it bootstraps from `V(s_T)` and is trained like the others.
 
 use tch::{Kind, Tensor};
 
@@ -20,8 +22,8 @@ pub struct Returns {
     pub trainable: Tensor,
 }
 
-/// `rewards`, `values` (unnormalised, no gradient) `[B, T]` float; `terminated`, `truncated`
-/// `[B, T]` bool; `lambda` in [0, 1] (1 = n-step returns).
+/// `rewards` `[B, T]` and `values` (unnormalised, no gradient) `[B, T]` or `[B, T + 1]` float;
+/// `terminated`, `truncated` `[B, T]` bool; `lambda` in [0, 1] (1 = n-step returns).
 pub fn bootstrapped_returns(
     rewards: &Tensor,
     values: &Tensor,
@@ -31,13 +33,22 @@ pub fn bootstrapped_returns(
     lambda: f64,
 ) -> Returns {
     let (_, t_len) = rewards.size2().expect("rewards are [B, T]");
+    let (_, v_len) = values.size2().expect("values are [B, T] or [B, T + 1]");
+    assert!(
+        v_len == t_len || v_len == t_len + 1,
+        "{v_len} values for {t_len} rewards"
+    );
     let values = values.detach();
     let cut = truncated.logical_and(&terminated.logical_not());
     let continues = terminated.logical_not().to_kind(rewards.kind());
     let mut columns = Vec::with_capacity(t_len as usize);
-    let mut next = values.select(1, t_len - 1);
-    columns.push(next.shallow_clone());
-    for t in (0..t_len - 1).rev() {
+    // The return beyond the last step learned from: V(s_T), or V(s_{T-1}) standing in for it.
+    let mut next = values.select(1, v_len - 1);
+    let learned = if v_len > t_len { t_len } else { t_len - 1 };
+    if learned < t_len {
+        columns.push(next.shallow_clone());
+    }
+    for t in (0..learned).rev() {
         let ahead = if lambda < 1.0 {
             values.select(1, t + 1) * (1.0 - lambda) + &next * lambda
         } else {
@@ -48,12 +59,12 @@ pub fn bootstrapped_returns(
         columns.push(next.shallow_clone());
     }
     columns.reverse();
-    let last = Tensor::arange(t_len, (Kind::Int64, rewards.device()))
-        .eq(t_len - 1)
+    let untrained = Tensor::arange(t_len, (Kind::Int64, rewards.device()))
+        .ge(learned)
         .unsqueeze(0);
     Returns {
         returns: Tensor::stack(&columns, 1),
-        trainable: cut.logical_or(&last).logical_not(),
+        trainable: cut.logical_or(&untrained).logical_not(),
     }
 }
 
@@ -134,5 +145,38 @@ mod tests {
         // λ = 0: one-step TD targets r + γ V(s').
         let r = bootstrapped_returns(&rewards, &values, &none, &none, 0.5, 0.0);
         assert_eq!(vec(&r.returns), vec![3.0, 6.0, 10.0]);
+    }
+
+    #[test]
+    fn a_value_after_the_segment_makes_the_last_step_trainable() {
+        // V(s_3) = 10 is given after three steps: G2 = 7 + 0.5·10 = 12, G1 = 1 + 0.5·12 = 7,
+        // G0 = 2 + 0.5·7 = 5.5; every step is trained.
+        let none = flags(&[false, false, false]);
+        let r = bootstrapped_returns(
+            &t(&[2.0, 1.0, 7.0]),
+            &t(&[0.0, 0.0, 0.0, 10.0]),
+            &none,
+            &none,
+            0.5,
+            1.0,
+        );
+        assert_eq!(vec(&r.returns), vec![5.5, 7.0, 12.0]);
+        assert_eq!(
+            Vec::<bool>::try_from(r.trainable.flatten(0, -1)).unwrap(),
+            vec![true, true, true]
+        );
+        // A last step that terminated returns its reward; one that was truncated stays untrained
+        // on its own value, as anywhere in the segment (the state after it is the next episode's).
+        let last = flags(&[false, false, true]);
+        let values = t(&[0.0, 0.0, 4.0, 10.0]);
+        let rewards = t(&[2.0, 1.0, 7.0]);
+        let r = bootstrapped_returns(&rewards, &values, &last, &none, 0.5, 1.0);
+        assert_eq!(vec(&r.returns), vec![4.25, 4.5, 7.0]);
+        let r = bootstrapped_returns(&rewards, &values, &none, &last, 0.5, 1.0);
+        assert_eq!(vec(&r.returns), vec![3.5, 3.0, 4.0]);
+        assert_eq!(
+            Vec::<bool>::try_from(r.trainable.flatten(0, -1)).unwrap(),
+            vec![true, true, false]
+        );
     }
 }

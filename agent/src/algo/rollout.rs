@@ -19,6 +19,15 @@ pub struct StepRecord {
     pub behaviour_std: Tensor,
 }
 
+/// The observation a step led to (after an autoreset, the next episode's first) and whether it
+/// starts a new episode, `[B, obs]` and `[B]`. Kept for the segment's last step: its value is
+/// what that step bootstraps from (`vmpo.learn_last_step`).
+#[derive(Debug)]
+pub struct NextObservation<'a> {
+    pub obs: &'a Tensor,
+    pub episode_start: &'a Tensor,
+}
+
 /// Accumulates T steps after `begin` (called with the acting state's segment-start memory) and
 /// returns the finished batch on CPU.
 #[derive(Debug)]
@@ -53,7 +62,11 @@ impl RolloutCollector {
         self.memory = Some((memory, memory_len));
     }
 
-    pub fn push(&mut self, step: StepRecord) -> Result<Option<SegmentBatch>, RolloutError> {
+    pub fn push(
+        &mut self,
+        step: StepRecord,
+        next: NextObservation<'_>,
+    ) -> Result<Option<SegmentBatch>, RolloutError> {
         if self.memory.is_none() {
             return Err(RolloutError::NotStarted);
         }
@@ -81,6 +94,11 @@ impl RolloutCollector {
             task: col(|s| &s.task, Kind::Int64),
             behaviour_mean: col(|s| &s.behaviour_mean, Kind::Float),
             behaviour_std: col(|s| &s.behaviour_std, Kind::Float),
+            bootstrap_obs: next.obs.to_device(Device::Cpu).to_kind(Kind::Float),
+            bootstrap_start: next
+                .episode_start
+                .to_device(Device::Cpu)
+                .to_kind(Kind::Bool),
             memory: memory.to_device(Device::Cpu),
             memory_len: memory_len.to_device(Device::Cpu),
         }))

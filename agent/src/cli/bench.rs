@@ -72,6 +72,8 @@ fn random_batch(cfg: &AgentConfig, b: i64) -> SegmentBatch {
         task: Tensor::randint(m.num_tasks as i64, [b, t], (Kind::Int64, Device::Cpu)),
         behaviour_mean: Tensor::randn([b, t, a], opts).tanh(),
         behaviour_std: Tensor::rand([b, t, a], opts) + 0.3,
+        bootstrap_obs: Tensor::randn([b, m.obs_dim() as i64], opts),
+        bootstrap_start: Tensor::rand([b], opts).lt(0.003),
         memory: Tensor::randn(
             [m.layers as i64, b, m.memory_len as i64, m.d_model as i64],
             opts,

@@ -133,6 +133,8 @@ fn write_inputs(
         ("task", &b.task),
         ("behaviour_mean", &b.behaviour_mean),
         ("behaviour_std", &b.behaviour_std),
+        ("bootstrap_obs", &b.bootstrap_obs),
+        ("bootstrap_start", &b.bootstrap_start),
         ("memory", &b.memory),
         ("memory_len", &b.memory_len),
     ];

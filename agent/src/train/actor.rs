@@ -6,7 +6,7 @@ use million_env::{EnvPool, Space, StepBatch};
 use tch::{Device, Kind, Tensor};
 
 use crate::algo::buffer::SegmentBatch;
-use crate::algo::rollout::{RolloutCollector, StepRecord};
+use crate::algo::rollout::{NextObservation, RolloutCollector, StepRecord};
 use crate::model::Model;
 use crate::model::acting::ActingState;
 use crate::model::policy::sample_actions;
@@ -148,23 +148,31 @@ impl GroupActor {
             .take()
             .ok_or_else(|| anyhow::anyhow!("group {} got a step it did not send", self.group))?;
         let ended = step.ended();
+        let next_inputs = self.tokens.step_inputs(model.config(), &step.obs, &ended)?;
+        let next_start = Tensor::from_slice(&ended);
         let mut batch = None;
         if record {
-            batch = self.collector.push(StepRecord {
-                obs: p.inputs.token,
-                episode_start: p.episode_start,
-                action: p.action,
-                reward: Tensor::from_slice(&step.reward_f32()),
-                terminated: Tensor::from_slice(&step.terminated),
-                truncated: Tensor::from_slice(&step.truncated),
-                instruction: p.inputs.instruction,
-                task: p.inputs.task,
-                behaviour_mean: p.mean,
-                behaviour_std: p.std,
-            })?;
+            batch = self.collector.push(
+                StepRecord {
+                    obs: p.inputs.token,
+                    episode_start: p.episode_start,
+                    action: p.action,
+                    reward: Tensor::from_slice(&step.reward_f32()),
+                    terminated: Tensor::from_slice(&step.terminated),
+                    truncated: Tensor::from_slice(&step.truncated),
+                    instruction: p.inputs.instruction,
+                    task: p.inputs.task,
+                    behaviour_mean: p.mean,
+                    behaviour_std: p.std,
+                },
+                NextObservation {
+                    obs: &next_inputs.token,
+                    episode_start: &next_start,
+                },
+            )?;
         }
-        self.inputs = Some(self.tokens.step_inputs(model.config(), &step.obs, &ended)?);
-        self.episode_start = Tensor::from_slice(&ended);
+        self.inputs = Some(next_inputs);
+        self.episode_start = next_start;
         Ok(batch)
     }
 }
