@@ -1,0 +1,115 @@
+"""The stand-in for scipy's Rotation in Meta-World's env modules gives scipy's quaternions
+bit for bit: on random rotations, on the branches' edge cases, on matrices scipy must
+repair or refuse, and in the observations of every Meta-World class that uses it."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+from scipy.spatial.transform import Rotation
+
+from million_env import quaternions
+from million_env.metaworld_tasks import load_benchmark
+from million_env.quaternions import MatrixRotation, quaternion_from_matrix
+
+
+def scipy_quaternion(matrix: np.ndarray) -> np.ndarray:
+    return Rotation.from_matrix(matrix).as_quat()
+
+
+def test_random_rotations_match_scipy_bit_for_bit() -> None:
+    matrices = Rotation.random(20_000, rng=7).as_matrix()
+    mismatched = [
+        m for m in matrices if not np.array_equal(quaternion_from_matrix(m), scipy_quaternion(m))
+    ]
+    assert not mismatched, f"{len(mismatched)} of {len(matrices)} differ, e.g. {mismatched[0]}"
+
+
+@pytest.mark.parametrize(
+    "rotation",
+    [
+        Rotation.identity(),
+        # Half turns: the trace is -1 and one diagonal entry is the largest (each branch).
+        Rotation.from_euler("x", 180, degrees=True),
+        Rotation.from_euler("y", 180, degrees=True),
+        Rotation.from_euler("z", 180, degrees=True),
+        # Ties between diagonal entries: the first of equal maxima decides, as numpy's argmax.
+        Rotation.from_rotvec(np.pi * np.array([1.0, 1.0, 0.0]) / np.sqrt(2)),
+        Rotation.from_rotvec(np.pi * np.array([0.0, 1.0, 1.0]) / np.sqrt(2)),
+        Rotation.from_rotvec(np.pi * np.ones(3) / np.sqrt(3)),
+        Rotation.from_euler("xyz", [90, 90, 0], degrees=True),
+    ],
+)
+def test_edge_cases_match_scipy(rotation: Rotation) -> None:
+    matrix = rotation.as_matrix()
+    assert np.array_equal(quaternion_from_matrix(matrix), scipy_quaternion(matrix))
+
+
+def test_a_matrix_that_is_not_a_rotation_is_left_to_scipy() -> None:
+    skewed = Rotation.from_euler("z", 30, degrees=True).as_matrix() * 1.01
+    # scipy orthogonalises it first; the stand-in hands it over and gives the same.
+    assert np.array_equal(quaternion_from_matrix(skewed), scipy_quaternion(skewed))
+    reflection = np.diag([1.0, 1.0, -1.0])
+    with pytest.raises(ValueError, match="determinant"):
+        quaternion_from_matrix(reflection)
+
+
+def test_any_other_use_of_rotation_fails_loudly() -> None:
+    with pytest.raises(AttributeError):
+        MatrixRotation.from_euler("x", 90)  # type: ignore[attr-defined]
+
+
+@pytest.fixture
+def stand_in() -> Iterator[None]:
+    """The stand-in installed, and installed again afterwards whatever the test set."""
+    quaternions.install(True)
+    yield
+    quaternions.install(True)
+
+
+FRESH_PROCESS = """
+from million_env import quaternions
+from million_env.registry import make_env
+make_env("Meta-World/MT1", {"env_name": "reach-v3"}).close()
+modules = quaternions.env_modules()
+print(len(modules), all(m.Rotation is quaternions.MatrixRotation for m in modules))
+"""
+
+
+def test_a_fresh_process_installs_it_when_it_makes_an_env() -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", FRESH_PROCESS], capture_output=True, text=True, check=True
+    )
+    assert out.stdout.split() == ["22", "True"]
+
+
+PATCHED_CLASSES = sorted(
+    name
+    for name, cls in ALL_V3_ENVIRONMENTS.items()
+    if cls.__module__ in {m.__name__ for m in quaternions.env_modules()}
+)
+
+
+@pytest.mark.parametrize("name", PATCHED_CLASSES)
+def test_observations_match_scipys_in_every_patched_class(name: str, stand_in: None) -> None:
+    bench = load_benchmark("ML1", name, 0)
+    env = dict(bench.train_classes)[name]()
+    try:
+        env.seed(3)
+        env.set_task(bench.train_tasks[0])
+        env.reset()
+        actions = np.random.default_rng(3).uniform(-1, 1, (25, 4)).astype(np.float32)
+        for action in actions:
+            env.step(action)
+            quaternions.install(False)
+            with_scipy = env._get_obs()
+            quaternions.install(True)
+            with_stand_in = env._get_obs()
+            assert np.array_equal(with_stand_in, with_scipy)
+    finally:
+        env.close()
