@@ -83,6 +83,30 @@ def test_bad_arguments_are_value_errors(
         MetaWorldTaskSampler(benchmark, split, task=task)
 
 
+def test_tasks_selects_a_subset_of_the_split_in_its_order() -> None:
+    sampler = MetaWorldTaskSampler(
+        "ML10", "train", seed=0, tasks=["push-v3", "reach-v3"], task_order="cycle"
+    )
+    assert sampler.task_names == ("reach-v3", "push-v3")
+    assert {sampler.sample().name for _ in range(6)} == {"reach-v3", "push-v3"}
+
+
+@pytest.mark.parametrize(
+    ("benchmark", "tasks", "message"),
+    [
+        ("ML10", [], "non-empty list"),
+        ("ML10", "reach-v3", "non-empty list"),
+        ("ML10", ["reach-v3", "drawer-open-v3"], r"\['drawer-open-v3'\] not in the split"),
+        ("ML10", ["reach-v3", "reach-v3"], "names a task twice"),
+        ("ML1", ["reach-v3"], "not `tasks`"),
+    ],
+)
+def test_bad_task_subsets_are_value_errors(benchmark: str, tasks: object, message: str) -> None:
+    task = "reach-v3" if benchmark == "ML1" else None
+    with pytest.raises(ValueError, match=message):
+        MetaWorldTaskSampler(benchmark, "train", task=task, tasks=tasks)  # type: ignore[arg-type]
+
+
 def test_cycle_order_starts_at_seed_mod_n_and_takes_classes_in_turn() -> None:
     sampler = MetaWorldTaskSampler("ML10", "test", task_order="cycle")
     names = sampler.task_names

@@ -314,6 +314,15 @@ def test_ml10_task_ids_index_all_task_names() -> None:
     }
 
 
+def test_ml10_tasks_kwarg_serves_only_the_named_classes() -> None:
+    chosen = {"reach-v3", "push-v3", "pick-place-v3"}
+    env = make("million/ML10-train", tasks=sorted(chosen))
+    names = {env.reset(seed=seed)[1]["task_name"] for seed in range(12)}
+    assert names == chosen
+    with pytest.raises(ValueError, match="not in the split"):
+        make("million/ML10-train", tasks=["drawer-open-v3"])
+
+
 def test_trial_longer_than_metaworld_allows_is_rejected() -> None:
     with pytest.raises(ValueError, match="trial_len"):
         make("million/ML1-train", trial_len=501)

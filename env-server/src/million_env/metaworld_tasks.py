@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import functools
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -69,6 +69,26 @@ def _validate(benchmark: str, split: str, task: str | None) -> None:
             raise ValueError(f"unknown Meta-World task {task!r}; expected one of {ALL_TASK_NAMES}")
     elif task is not None:
         raise ValueError(f"{benchmark} takes no task name (got {task!r}); only ML1 does")
+
+
+def select_classes(
+    classes: dict[str, type], benchmark: str, split: str, tasks: Sequence[str] | None
+) -> dict[str, type]:
+    """The split's classes, or those named in `tasks` (in the split's order): a smaller
+    multi-task set of ML10 or ML45, e.g. its goal-dependent tasks."""
+    if tasks is None:
+        return classes
+    where = f"tasks for {benchmark} {split}"
+    if benchmark == "ML1":
+        raise ValueError(f"{where}: ML1 takes one task class (`task`), not `tasks`")
+    if isinstance(tasks, str) or not isinstance(tasks, Sequence) or not tasks:
+        raise ValueError(f"{where} must be a non-empty list of task names, got {tasks!r}")
+    unknown = [name for name in tasks if name not in classes]
+    if unknown:
+        raise ValueError(f"{where}: {unknown} not in the split; it has {list(classes)}")
+    if len(set(tasks)) != len(tasks):
+        raise ValueError(f"{where} names a task twice: {list(tasks)}")
+    return {name: cls for name, cls in classes.items() if name in tasks}
 
 
 @dataclass
@@ -182,6 +202,7 @@ class MetaWorldTaskSampler:
         benchmark_seed: int = DEFAULT_BENCHMARK_SEED,
         task_order: str = "random",
         built_envs: BuiltEnvs | None = None,
+        tasks: Sequence[str] | None = None,
     ) -> None:
         _validate(benchmark, split, task)
         self._cycle = parse_task_order(task_order)
@@ -191,12 +212,13 @@ class MetaWorldTaskSampler:
         self.split = split
         bench = load_benchmark(benchmark, task, benchmark_seed)
         classes = bench.train_classes if split == "train" else bench.test_classes
-        tasks = bench.train_tasks if split == "train" else bench.test_tasks
-        self._classes: dict[str, type] = dict(classes)
+        goals = bench.train_tasks if split == "train" else bench.test_tasks
+        self._classes: dict[str, type] = select_classes(dict(classes), benchmark, split, tasks)
         self.task_names: tuple[str, ...] = tuple(self._classes)
         self._tasks_by_name: dict[str, list[Any]] = {name: [] for name in self.task_names}
-        for mw_task in tasks:
-            self._tasks_by_name[mw_task.env_name].append(mw_task)
+        for mw_task in goals:
+            if mw_task.env_name in self._tasks_by_name:
+                self._tasks_by_name[mw_task.env_name].append(mw_task)
         self._held: tuple[str, Any] | None = None
         self._rng = np.random.default_rng()
         self._next_class = 0

@@ -13,6 +13,7 @@ def make_metaworld_million(
     split: str,
     *,
     task: str | None = None,
+    tasks: list[str] | None = None,
     instruction_set: str = "train",
     instructions: bool = True,
     time_obs: str = "trial",
@@ -25,10 +26,11 @@ def make_metaworld_million(
     goal_in_state: bool = False,
     end_on_success: bool = False,
 ) -> MillionEnv:
-    """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`); trials run
-    their full length (the original code; `million_env.million.protocol` says why)."""
+    """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`; ML10 and ML45
+    take `tasks`, a subset of the split's classes); trials run their full length (the
+    original code; `million_env.million.protocol` says why)."""
     sentences = metaworld_instructions(instruction_set)
-    source = MetaWorldSource(benchmark, split, task=task, task_order=task_order)
+    source = MetaWorldSource(benchmark, split, task=task, task_order=task_order, tasks=tasks)
     try:
         return MillionEnv(
             source,

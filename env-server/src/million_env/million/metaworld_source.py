@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import gymnasium
@@ -60,9 +61,16 @@ class MetaWorldSource:
     """Tasks of a benchmark split, sampled by the shared `MetaWorldTaskSampler`."""
 
     def __init__(
-        self, benchmark: str, split: str, task: str | None = None, task_order: str = "random"
+        self,
+        benchmark: str,
+        split: str,
+        task: str | None = None,
+        task_order: str = "random",
+        tasks: Sequence[str] | None = None,
     ) -> None:
-        self._sampler = MetaWorldTaskSampler(benchmark, split, task=task, task_order=task_order)
+        self._sampler = MetaWorldTaskSampler(
+            benchmark, split, task=task, task_order=task_order, tasks=tasks
+        )
         # Every Meta-World v3 env has the same action space and path limit; read
         # them from one env so that a change upstream is followed.
         probe = self._sampler.sample()

@@ -50,8 +50,13 @@ def _describe(what: str, kwargs: dict[str, Any]) -> str:
 
 def _entries() -> list[tuple[str, Callable[..., Any], dict[str, Any], str]]:
     entries = []
-    # `task` names the ML1 class; the other benchmarks take none (None is not sent).
-    protocol = {k: v for k, v in keyword_defaults(make_metaworld_million).items() if k != "task"}
+    # `task` names the ML1 class; the other benchmarks take none, but may take `tasks`, a
+    # subset of their split (both default to None, which a Value cannot hold: not listed).
+    protocol = {
+        k: v
+        for k, v in keyword_defaults(make_metaworld_million).items()
+        if k not in ("task", "tasks")
+    }
     for benchmark in ("ML1", "ML10", "ML45"):
         for split in ("train", "test"):
             kwargs = dict(protocol)
@@ -59,6 +64,8 @@ def _entries() -> list[tuple[str, Callable[..., Any], dict[str, Any], str]]:
             if benchmark == "ML1":
                 kwargs = {"task": "reach-v3", **kwargs}
                 what = f"Meta-World v3 ML1 {split} goals of one task class"
+            else:
+                what += " (kwarg tasks: a list naming a subset of them)"
             entry = functools.partial(make_metaworld_million, benchmark, split)
             entries.append((f"million/{benchmark}-{split}", entry, kwargs, _describe(what, kwargs)))
     point = keyword_defaults(make_point_goal_million)
