@@ -7,7 +7,7 @@ import asyncio
 import os
 from pathlib import Path
 
-from million_env import logs, quaternions
+from million_env import logs, metaworld_fast_paths
 from million_env.allocator import fix_mmap_threshold
 from million_env.compiled_models import COMPILED_MODELS, DEFAULT_COMPILED_MODELS
 from million_env.metaworld_tasks import (
@@ -78,10 +78,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "recently used dropped; 0 = compile every env",
     )
     parser.add_argument(
-        "--scipy-quaternions",
+        "--no-fast-paths",
         action="store_true",
-        help="compute Meta-World's object quaternions with scipy's Rotation as Meta-World "
-        "does (the same numbers, ~30x slower per call; for timing the two)",
+        help="run Meta-World's own code for the gripper-contact test and the object "
+        "quaternions instead of million_env's fast paths (the same numbers, slower; for "
+        "timing the two)",
     )
     parser.add_argument(
         "--preload",
@@ -145,7 +146,7 @@ def main(argv: list[str] | None = None) -> None:
     logs.configure(args.log_level, args.log_format)
     BUILT_ENVS.max_idle = args.idle_envs
     COMPILED_MODELS.max_models = args.compiled_models
-    quaternions.ENABLED = not args.scipy_quaternions
+    metaworld_fast_paths.ENABLED = not args.no_fast_paths
     fix_mmap_threshold()
     from million_env.server import serve
 

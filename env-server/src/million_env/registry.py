@@ -28,13 +28,13 @@ _DESCRIPTIONS: dict[str, str] | None = None
 def _register_all() -> dict[str, str]:
     import metaworld  # noqa: F401 - importing it registers Meta-World/* with Gymnasium
 
-    from million_env import compiled_models, quaternions
+    from million_env import compiled_models, metaworld_fast_paths
     from million_env.million import register_envs as register_million_envs
 
     # Every Meta-World env made here (served or stepped in-process) copies its model and
-    # computes its object quaternions without scipy's per-call cost (the same numbers).
+    # takes the fast paths of its hot spots (the same numbers).
     compiled_models.install()
-    quaternions.install()
+    metaworld_fast_paths.install()
 
     own = register_metaworld_envs()
     own.update(register_million_envs())

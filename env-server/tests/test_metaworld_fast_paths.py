@@ -1,9 +1,11 @@
-"""The stand-in for scipy's Rotation in Meta-World's env modules gives scipy's quaternions
-bit for bit: on random rotations, on the branches' edge cases, on matrices scipy must
-repair or refuse, and in the observations of every Meta-World class that uses it."""
+"""Meta-World's fast paths give what Meta-World's own code gives, bit for bit: the object
+quaternion on random rotations, on the branches' edge cases, on matrices scipy must repair or
+refuse, and in the observations of every class that uses it; the gripper-contact test in
+every class whose reward uses it, along scripted grasps."""
 
 from __future__ import annotations
 
+import inspect
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -11,11 +13,12 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 from metaworld.env_dict import ALL_V3_ENVIRONMENTS
+from metaworld.sawyer_xyz_env import SawyerXYZEnv
 from scipy.spatial.transform import Rotation
 
-from million_env import quaternions
+from million_env import metaworld_fast_paths
+from million_env.metaworld_fast_paths import MatrixRotation, quaternion_from_matrix, touching_object
 from million_env.metaworld_tasks import load_benchmark
-from million_env.quaternions import MatrixRotation, quaternion_from_matrix
 
 
 def scipy_quaternion(matrix: np.ndarray) -> np.ndarray:
@@ -65,19 +68,21 @@ def test_any_other_use_of_rotation_fails_loudly() -> None:
 
 
 @pytest.fixture
-def stand_in() -> Iterator[None]:
-    """The stand-in installed, and installed again afterwards whatever the test set."""
-    quaternions.install(True)
+def fast_paths() -> Iterator[None]:
+    """The fast paths installed, and installed again afterwards whatever the test set."""
+    metaworld_fast_paths.install(True)
     yield
-    quaternions.install(True)
+    metaworld_fast_paths.install(True)
 
 
 FRESH_PROCESS = """
-from million_env import quaternions
+from metaworld.sawyer_xyz_env import SawyerXYZEnv
+from million_env import metaworld_fast_paths as fast
 from million_env.registry import make_env
 make_env("Meta-World/MT1", {"env_name": "reach-v3"}).close()
-modules = quaternions.env_modules()
-print(len(modules), all(m.Rotation is quaternions.MatrixRotation for m in modules))
+modules = fast.env_modules()
+print(len(modules), all(m.Rotation is fast.MatrixRotation for m in modules),
+      SawyerXYZEnv.touching_object is fast.touching_object)
 """
 
 
@@ -85,18 +90,18 @@ def test_a_fresh_process_installs_it_when_it_makes_an_env() -> None:
     out = subprocess.run(
         [sys.executable, "-c", FRESH_PROCESS], capture_output=True, text=True, check=True
     )
-    assert out.stdout.split() == ["22", "True"]
+    assert out.stdout.split() == ["22", "True", "True"]
 
 
 PATCHED_CLASSES = sorted(
     name
     for name, cls in ALL_V3_ENVIRONMENTS.items()
-    if cls.__module__ in {m.__name__ for m in quaternions.env_modules()}
+    if cls.__module__ in {m.__name__ for m in metaworld_fast_paths.env_modules()}
 )
 
 
 @pytest.mark.parametrize("name", PATCHED_CLASSES)
-def test_observations_match_scipys_in_every_patched_class(name: str, stand_in: None) -> None:
+def test_observations_match_scipys_in_every_patched_class(name: str, fast_paths: None) -> None:
     bench = load_benchmark("ML1", name, 0)
     env = dict(bench.train_classes)[name]()
     try:
@@ -106,10 +111,56 @@ def test_observations_match_scipys_in_every_patched_class(name: str, stand_in: N
         actions = np.random.default_rng(3).uniform(-1, 1, (25, 4)).astype(np.float32)
         for action in actions:
             env.step(action)
-            quaternions.install(False)
+            metaworld_fast_paths.install(False)
             with_scipy = env._get_obs()
-            quaternions.install(True)
+            metaworld_fast_paths.install(True)
             with_stand_in = env._get_obs()
             assert np.array_equal(with_stand_in, with_scipy)
     finally:
         env.close()
+
+
+CONTACT_CLASSES = sorted(
+    name
+    for name, cls in ALL_V3_ENVIRONMENTS.items()
+    if "touching_main_object" in inspect.getsource(sys.modules[cls.__module__])
+)
+
+
+def grasp_actions(obs: np.ndarray, step: int) -> np.ndarray:
+    """Over the object, down onto it, close the gripper, lift: contacts of both pads."""
+    hand, obj = obs[0:3], obs[4:7]
+    if step < 40:
+        target, grip = obj + np.array([0.0, 0.0, 0.08]), -1.0
+    elif step < 80:
+        target, grip = obj, -1.0
+    elif step < 110:
+        target, grip = hand, 1.0
+    else:
+        target, grip = hand + np.array([0.0, 0.0, 0.05]), 1.0
+    return np.append(np.clip(10 * (target - hand), -1, 1), grip).astype(np.float32)
+
+
+@pytest.mark.parametrize("name", CONTACT_CLASSES)
+def test_the_contact_test_matches_metaworlds_along_a_grasp(name: str, fast_paths: None) -> None:
+    metaworld_fast_paths.install(False)
+    metaworld_code = SawyerXYZEnv.touching_object
+    metaworld_fast_paths.install(True)
+    bench = load_benchmark("ML1", name, 0)
+    env = dict(bench.train_classes)[name]()
+    try:
+        env.seed(5)
+        env.set_task(bench.train_tasks[0])
+        obs, _ = env.reset()
+        touching = 0
+        for step in range(150):
+            obs = env.step(grasp_actions(obs, step))[0]
+            object_id = env._get_id_main_object()
+            expected = metaworld_code(env, object_id)
+            assert touching_object(env, object_id) == expected, f"step {step}"
+            touching += bool(expected)
+    finally:
+        env.close()
+    # The grasp must reach states where the answer is yes, or the comparison proves little.
+    if name in ("pick-place-v3", "pick-place-wall-v3", "push-v3", "shelf-place-v3"):
+        assert touching > 0
