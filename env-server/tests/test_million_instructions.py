@@ -4,20 +4,24 @@ from __future__ import annotations
 
 import logging
 
+import gymnasium
 import numpy as np
 import pytest
 
 from million_env.metaworld_tasks import ALL_TASK_NAMES
-from million_env.million import protocol_stats
+from million_env.million import protocol_stats, register_envs
 from million_env.million.glove import EMBED_DIM, glove
 from million_env.million.instructions import (
     INSTRUCTION_SETS,
+    NOISE_VOCABULARY,
     InstructionEncoder,
     metaworld_instructions,
     point_goal_instructions,
     tokenize,
     unknown_words,
+    with_word_noise,
 )
+from million_env.million.protocol import PHASE_INSTRUCTION
 
 POINT_GOAL_COUNTS = (2, 4, 8)
 
@@ -142,3 +146,64 @@ def test_check_instructions_command_reports_zero_unknown_words() -> None:
     assert report["unknown_words_total"] == 0
     assert report["sets"]["metaworld/train"]["sentences"] >= 200
     assert report["sets"]["metaworld/heldout"]["sentences"] >= 200
+
+
+def every_instruction_word() -> set[str]:
+    words = set()
+    for instruction_set in INSTRUCTION_SETS:
+        for group in metaworld_instructions(instruction_set).values():
+            for sentence in group:
+                words.update(tokenize(sentence))
+        for count in POINT_GOAL_COUNTS:
+            for group in point_goal_instructions(instruction_set, count).values():
+                for sentence in group:
+                    words.update(tokenize(sentence))
+    return words
+
+
+def test_word_noise_replaces_words_but_goal_pos_by_unused_glove_words() -> None:
+    goal = np.array([0.05, 0.85, 0.2])
+    clean = InstructionEncoder().encode("move the hand to goal_pos", goal)
+    rng = np.random.default_rng(0)
+    noisy = [with_word_noise(clean, 0.5, rng) for _ in range(200)]
+    table = glove()
+    used = every_instruction_word()
+    replaced = 0
+    for instruction in noisy:
+        assert instruction.text == clean.text
+        assert instruction.tokens[-1] == "goal_pos"
+        np.testing.assert_array_equal(instruction.vectors[-1], clean.vectors[-1])
+        for i, (token, original) in enumerate(zip(instruction.tokens, clean.tokens, strict=True)):
+            if token == original:
+                np.testing.assert_array_equal(instruction.vectors[i], clean.vectors[i])
+                continue
+            replaced += 1
+            assert token not in used
+            assert table.row(token) < NOISE_VOCABULARY
+            np.testing.assert_array_equal(instruction.vectors[i], table.vector(token))
+    # 4 replaceable words at p = 0.5 over 200 draws: ~400 replacements.
+    assert 300 < replaced < 500
+    assert with_word_noise(clean, 0.0, rng) is clean
+
+
+def test_word_noise_in_the_protocol_is_seeded_and_keeps_the_goal_word() -> None:
+    def fed_words(seed: int, word_noise: float) -> list[np.ndarray]:
+        register_envs()
+        env = gymnasium.make("million/ML1-train", word_noise=word_noise)
+        obs, info = env.reset(seed=seed)
+        words = []
+        while info["phase"] == PHASE_INSTRUCTION:
+            words.append(obs["word"].copy())
+            obs, _reward, _terminated, _truncated, info = env.step(np.zeros(4, dtype=np.float32))
+        env.close()
+        return words
+
+    clean, noisy, again = fed_words(3, 0.0), fed_words(3, 0.9), fed_words(3, 0.9)
+    assert len(clean) == len(noisy)
+    assert all(np.array_equal(a, b) for a, b in zip(noisy, again, strict=True))
+    # The goal word (the last, [x, y, z, 0...]) is kept; most others are replaced.
+    np.testing.assert_array_equal(noisy[-1], clean[-1])
+    assert sum(not np.array_equal(a, b) for a, b in zip(noisy[:-1], clean[:-1], strict=True)) > 0
+    for bad in (-0.1, 1.0, True, "0.2"):
+        with pytest.raises(ValueError, match="word_noise"):
+            gymnasium.make("million/ML1-train", word_noise=bad)

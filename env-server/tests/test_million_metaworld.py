@@ -72,6 +72,7 @@ def test_registered_ids() -> None:
         "goal_encoding": "raw",
         "goal_in_state": False,
         "end_on_success": False,
+        "word_noise": 0.0,
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):

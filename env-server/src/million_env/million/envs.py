@@ -25,6 +25,7 @@ def make_metaworld_million(
     goal_encoding: str = "raw",
     goal_in_state: bool = False,
     end_on_success: bool = False,
+    word_noise: float = 0.0,
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`; ML10 and ML45
     take `tasks`, a subset of the split's classes); trials run their full length (the
@@ -44,6 +45,7 @@ def make_metaworld_million(
             goal_encoding=goal_encoding,
             goal_in_state=goal_in_state,
             end_on_success=end_on_success,
+            word_noise=word_noise,
         )
     except Exception:
         source.close()
@@ -64,6 +66,7 @@ def make_point_goal_million(
     goal_encoding: str = "raw",
     goal_in_state: bool = False,
     end_on_success: bool = True,
+    word_noise: float = 0.0,
 ) -> MillionEnv:
     """MILLION episodes over PointGoal with `num_goals` (2, 4 or 8) compass goals; a trial
     ends at its success (its potential-based reward is made for that)."""
@@ -83,4 +86,5 @@ def make_point_goal_million(
         goal_encoding=goal_encoding,
         goal_in_state=goal_in_state,
         end_on_success=end_on_success,
+        word_noise=word_noise,
     )

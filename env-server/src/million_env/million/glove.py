@@ -74,6 +74,10 @@ class GloVe:
             return None
         return np.array(self.matrix[row], dtype=np.float32)
 
+    def word(self, row: int) -> str:
+        """The word of a matrix row."""
+        return str(self._words[row].as_py())
+
     def __contains__(self, word: str) -> bool:
         return self.row(word) is not None
 

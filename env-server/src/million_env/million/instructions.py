@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import json
 import threading
 from collections.abc import Mapping, Sequence
@@ -86,8 +87,8 @@ def point_goal_instructions(instruction_set: str, num_goals: int) -> dict[str, t
 class EncodedInstruction:
     """One sentence as the word vectors fed during an instruction phase."""
 
-    text: str
-    tokens: tuple[str, ...]
+    text: str  # the sentence chosen
+    tokens: tuple[str, ...]  # the words fed (`word_noise` may have replaced some of the text's)
     vectors: npt.NDArray[np.float32]  # (len(tokens), 50); read-only
 
 
@@ -141,6 +142,54 @@ class InstructionEncoder:
         vectors.flags.writeable = False
         COUNTERS.count_tokens(len(tokens), unknown)
         return EncodedInstruction(text=sentence, tokens=tokens, vectors=vectors)
+
+
+#: Rows of GloVe's most frequent words that `word_noise` draws its replacements from.
+NOISE_VOCABULARY = 20_000
+
+
+@functools.cache
+def noise_rows() -> npt.NDArray[np.int64]:
+    """Rows among GloVe's `NOISE_VOCABULARY` most frequent words (GloVe lists words by
+    frequency) that no shipped sentence uses, training or held-out: a word that replaces
+    another under `word_noise` never teaches a held-out paraphrase's words."""
+    table = glove()
+    used = set()
+    for instruction_set in INSTRUCTION_SETS:
+        groups = [*metaworld_instructions(instruction_set).values()]
+        data = read_data_file(POINT_GOAL_FILE)
+        groups.append(_sentence_list(POINT_GOAL_FILE, data.get(instruction_set)))
+        for names in data.get("goal_names", {}).values():
+            used.update(str(name).lower() for name in names)
+        for group in groups:
+            for sentence in group:
+                used.update(tokenize(sentence.replace("{goal}", " ")))
+    used_rows = {row for row in (table.row(word) for word in used) if row is not None}
+    return np.array(
+        [row for row in range(NOISE_VOCABULARY) if row not in used_rows], dtype=np.int64
+    )
+
+
+def with_word_noise(
+    instruction: EncodedInstruction, probability: float, rng: np.random.Generator
+) -> EncodedInstruction:
+    """The instruction with each word but ``goal_pos`` replaced, with `probability`, by a
+    random word of `noise_rows()` (its GloVe vector and its token); ``text`` stays the
+    sentence. A training-time augmentation: the goal word stays, the wording varies."""
+    replace = rng.random(len(instruction.tokens)) < probability
+    replace &= np.array([token != GOAL_TOKEN for token in instruction.tokens])
+    if not replace.any():
+        return instruction
+    pool = noise_rows()
+    table = glove()
+    rows = pool[rng.integers(len(pool), size=int(replace.sum()))]
+    vectors = instruction.vectors.copy()
+    vectors[replace] = table.matrix[rows]
+    vectors.flags.writeable = False
+    tokens = list(instruction.tokens)
+    for index, row in zip(np.flatnonzero(replace), rows, strict=True):
+        tokens[index] = table.word(int(row))
+    return EncodedInstruction(text=instruction.text, tokens=tuple(tokens), vectors=vectors)
 
 
 def unknown_words(sentences: Mapping[str, Sequence[str]]) -> list[str]:

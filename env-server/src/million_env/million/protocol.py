@@ -28,7 +28,11 @@ import numpy.typing as npt
 from million_env.errors import precondition, unimplemented
 from million_env.info_fields import InfoField
 from million_env.million.glove import EMBED_DIM
-from million_env.million.instructions import EncodedInstruction, InstructionEncoder
+from million_env.million.instructions import (
+    EncodedInstruction,
+    InstructionEncoder,
+    with_word_noise,
+)
 from million_env.million.task_source import STATE_DIM, SampledTask, TaskSource
 
 TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
@@ -58,6 +62,8 @@ END_ON_SUCCESS_DEFAULT = False
 GOAL_STATE_SLICE = slice(STATE_DIM - 3, STATE_DIM)
 # Second entropy word of the sentence generator's seed (any constant != task streams).
 _SENTENCE_STREAM = 0x5E47E4CE
+# Second entropy word of the word-noise generator (`word_noise`), apart from the sentences.
+_WORD_NOISE_STREAM = 0x0715E
 PHASE_INSTRUCTION = "instruction"
 PHASE_TRIAL = "trial"
 
@@ -135,6 +141,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         goal_encoding: str = "raw",
         goal_in_state: bool = False,
         end_on_success: bool = END_ON_SUCCESS_DEFAULT,
+        word_noise: float = 0.0,
     ) -> None:
         if time_obs not in TIME_OBS_MODES:
             raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
@@ -160,6 +167,12 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         ):
             if not isinstance(flag, bool):
                 raise ValueError(f"{name} must be a bool, got {flag!r}")
+        if (
+            isinstance(word_noise, bool)
+            or not isinstance(word_noise, (int, float))
+            or not 0.0 <= word_noise < 1.0
+        ):
+            raise ValueError(f"word_noise must be a probability in [0, 1), got {word_noise!r}")
         if trial_len > source.max_steps_per_reset:
             raise ValueError(
                 f"trial_len {trial_len} exceeds the {source.max_steps_per_reset} env steps "
@@ -177,6 +190,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._goal_in_range = goal_encoding == "range"
         self._goal_in_state = goal_in_state
         self._end_on_success = end_on_success
+        self._word_noise = float(word_noise)
         self._episode_time = time_obs == "episode"
         self._action_repeat = action_repeat
         self._trials = trials
@@ -203,6 +217,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._prev_reward = 0.0
         self._done = False
         self._sentence_rng = np.random.default_rng()
+        self._noise_rng = np.random.default_rng()
 
     # ------------------------------------------------------------------ gymnasium
 
@@ -215,6 +230,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             # A stream of its own: the source seeds its generator with `seed` too,
             # and sharing that stream would tie the sentence choice to the task choice.
             self._sentence_rng = np.random.default_rng([seed, _SENTENCE_STREAM])
+            self._noise_rng = np.random.default_rng([seed, _WORD_NOISE_STREAM])
         self._task = self._source.sample()
         self._instruction = None
         self._trial = 0
@@ -307,7 +323,10 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             self._phase = PHASE_TRIAL
             return
         assert self._task is not None
-        self._instruction = self._encoder.encode(self._next_sentence(), self._named_goal())
+        instruction = self._encoder.encode(self._next_sentence(), self._named_goal())
+        if self._word_noise > 0.0:
+            instruction = with_word_noise(instruction, self._word_noise, self._noise_rng)
+        self._instruction = instruction
         self._word_index = 0
         self._phase = PHASE_INSTRUCTION
 

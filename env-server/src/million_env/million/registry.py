@@ -31,6 +31,7 @@ _MEANINGS = {
     "goal_encoding": "'raw'|'range' (goal_pos in metres, or scaled from the goal range to [-1, 1])",
     "goal_in_state": "True = diagnostic: the real goal in the trial state's last 3 entries",
     "end_on_success": "True = a trial ends at its success (Meta-World default: full length)",
+    "word_noise": "p: each instruction word but goal_pos replaced by a random unused word",
 }
 
 
