@@ -21,7 +21,7 @@ import time
 import gymnasium
 import numpy as np
 
-from million_env import metaworld_fast_paths
+from million_env import compiled_models, metaworld_fast_paths
 from million_env.metaworld_tasks import MetaWorldTaskSampler
 from million_env.million import protocol_stats, register_envs
 
@@ -117,6 +117,9 @@ def main() -> None:
     )
     args = parser.parse_args()
     register_envs()
+    # As the server does (registry._register_all), which this script bypasses.
+    compiled_models.install()
+    metaworld_fast_paths.install()
     actions = np.random.default_rng(args.seed).uniform(-1, 1, size=(4096, 4)).astype(np.float32)
     million_times, raw_times, reference_million_times, reference_raw_times = [], [], [], []
     for _ in range(args.repeats):

@@ -25,7 +25,17 @@ def scipy_quaternion(matrix: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(matrix).as_quat()
 
 
-def test_random_rotations_match_scipy_bit_for_bit() -> None:
+@pytest.fixture
+def no_fallback(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Makes the hand-over to scipy fail: a test with it proves the fast path itself ran."""
+
+    def refuse(matrix: object) -> np.ndarray:
+        raise AssertionError(f"the fast path handed {matrix!r} to scipy")
+
+    monkeypatch.setattr(metaworld_fast_paths, "scipy_quaternion", refuse)
+
+
+def test_random_rotations_match_scipy_bit_for_bit(no_fallback: None) -> None:
     matrices = Rotation.random(20_000, rng=7).as_matrix()
     mismatched = [
         m for m in matrices if not np.array_equal(quaternion_from_matrix(m), scipy_quaternion(m))
@@ -48,12 +58,16 @@ def test_random_rotations_match_scipy_bit_for_bit() -> None:
         Rotation.from_euler("xyz", [90, 90, 0], degrees=True),
     ],
 )
-def test_edge_cases_match_scipy(rotation: Rotation) -> None:
+def test_edge_cases_match_scipy(rotation: Rotation, no_fallback: None) -> None:
     matrix = rotation.as_matrix()
     assert np.array_equal(quaternion_from_matrix(matrix), scipy_quaternion(matrix))
 
 
 def test_a_matrix_that_is_not_a_rotation_is_left_to_scipy() -> None:
+    # Not 3x3 float64: scipy's own answer (and its errors), not a reshaped guess.
+    flat = Rotation.from_euler("z", 30, degrees=True).as_matrix().reshape(9)
+    with pytest.raises(ValueError):
+        quaternion_from_matrix(flat)
     skewed = Rotation.from_euler("z", 30, degrees=True).as_matrix() * 1.01
     # scipy orthogonalises it first; the stand-in hands it over and gives the same.
     assert np.array_equal(quaternion_from_matrix(skewed), scipy_quaternion(skewed))
@@ -101,7 +115,9 @@ PATCHED_CLASSES = sorted(
 
 
 @pytest.mark.parametrize("name", PATCHED_CLASSES)
-def test_observations_match_scipys_in_every_patched_class(name: str, fast_paths: None) -> None:
+def test_observations_match_scipys_in_every_patched_class(
+    name: str, fast_paths: None, no_fallback: None
+) -> None:
     bench = load_benchmark("ML1", name, 0)
     env = dict(bench.train_classes)[name]()
     try:
@@ -112,8 +128,10 @@ def test_observations_match_scipys_in_every_patched_class(name: str, fast_paths:
         for action in actions:
             env.step(action)
             metaworld_fast_paths.install(False)
+            assert sys.modules[type(env).__module__].Rotation is Rotation
             with_scipy = env._get_obs()
             metaworld_fast_paths.install(True)
+            assert sys.modules[type(env).__module__].Rotation is MatrixRotation
             with_stand_in = env._get_obs()
             assert np.array_equal(with_stand_in, with_scipy)
     finally:
@@ -145,7 +163,9 @@ def grasp_actions(obs: np.ndarray, step: int) -> np.ndarray:
 def test_the_contact_test_matches_metaworlds_along_a_grasp(name: str, fast_paths: None) -> None:
     metaworld_fast_paths.install(False)
     metaworld_code = SawyerXYZEnv.touching_object
+    assert metaworld_code is not touching_object
     metaworld_fast_paths.install(True)
+    assert SawyerXYZEnv.touching_object is touching_object
     bench = load_benchmark("ML1", name, 0)
     env = dict(bench.train_classes)[name]()
     try:

@@ -96,6 +96,7 @@ def test_tasks_selects_a_subset_of_the_split_in_its_order() -> None:
     [
         ("ML10", [], "non-empty list"),
         ("ML10", "reach-v3", "non-empty list"),
+        ("ML10", [["reach-v3"]], "non-empty list"),
         ("ML10", ["reach-v3", "drawer-open-v3"], r"\['drawer-open-v3'\] not in the split"),
         ("ML10", ["reach-v3", "reach-v3"], "names a task twice"),
         ("ML1", ["reach-v3"], "not `tasks`"),

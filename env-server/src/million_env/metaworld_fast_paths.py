@@ -43,10 +43,12 @@ _LOCK = threading.Lock()
 
 def quaternion_from_matrix(matrix: Any) -> npt.NDArray[np.float64]:
     """``Rotation.from_matrix(matrix).as_quat()`` for one 3x3 rotation: (x, y, z, w)."""
-    rows = np.asarray(matrix, dtype=np.float64).reshape(3, 3).tolist()
-    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rows
+    array = np.asarray(matrix)
+    if array.shape != (3, 3) or array.dtype != np.float64:
+        return scipy_quaternion(array)
+    (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = array.tolist()
     if not _proper_rotation(m00, m01, m02, m10, m11, m12, m20, m21, m22):
-        return np.asarray(Rotation.from_matrix(np.asarray(rows)).as_quat(), dtype=np.float64)
+        return scipy_quaternion(array)
     trace = m00 + m11 + m22
     # numpy's argmax over (m00, m11, m22, trace): the first of equal maxima wins.
     choice, largest = 0, m00
@@ -66,6 +68,11 @@ def quaternion_from_matrix(matrix: Any) -> npt.NDArray[np.float64]:
         x, y, z, w = m21 - m12, m02 - m20, m10 - m01, 1 + trace
     norm = math.sqrt(x * x + y * y + z * z + w * w)
     return np.array((x / norm, y / norm, z / norm, w / norm))
+
+
+def scipy_quaternion(matrix: Any) -> npt.NDArray[np.float64]:
+    """scipy's own answer, for what the fast path does not handle."""
+    return np.asarray(Rotation.from_matrix(matrix).as_quat(), dtype=np.float64)
 
 
 def _proper_rotation(*m: float) -> bool:

@@ -81,7 +81,12 @@ def select_classes(
     where = f"tasks for {benchmark} {split}"
     if benchmark == "ML1":
         raise ValueError(f"{where}: ML1 takes one task class (`task`), not `tasks`")
-    if isinstance(tasks, str) or not isinstance(tasks, Sequence) or not tasks:
+    if (
+        isinstance(tasks, str)
+        or not isinstance(tasks, Sequence)
+        or not tasks
+        or not all(isinstance(name, str) for name in tasks)
+    ):
         raise ValueError(f"{where} must be a non-empty list of task names, got {tasks!r}")
     unknown = [name for name in tasks if name not in classes]
     if unknown:
