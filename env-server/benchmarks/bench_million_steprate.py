@@ -21,9 +21,10 @@ import time
 import gymnasium
 import numpy as np
 
-from million_env import compiled_models, metaworld_fast_paths
+from million_env import metaworld_fast_paths
 from million_env.metaworld_tasks import MetaWorldTaskSampler
-from million_env.million import protocol_stats, register_envs
+from million_env.million import protocol_stats
+from million_env.registry import env_descriptions
 
 ML10_TRAIN = MetaWorldTaskSampler("ML10", "train").task_names
 Schedule = list[list[tuple[str, int]]]  # per episode: (task, env steps) per trial
@@ -116,10 +117,7 @@ def main() -> None:
         "metaworld_fast_paths off), alternating with the fast paths, and report the ratio",
     )
     args = parser.parse_args()
-    register_envs()
-    # As the server does (registry._register_all), which this script bypasses.
-    compiled_models.install()
-    metaworld_fast_paths.install()
+    env_descriptions()  # registers the envs as the server does: compiled models, fast paths
     actions = np.random.default_rng(args.seed).uniform(-1, 1, size=(4096, 4)).astype(np.float32)
     million_times, raw_times, reference_million_times, reference_raw_times = [], [], [], []
     for _ in range(args.repeats):

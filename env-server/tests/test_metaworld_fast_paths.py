@@ -5,10 +5,12 @@ every class whose reward uses it, along scripted grasps."""
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import subprocess
 import sys
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
@@ -107,6 +109,19 @@ def test_a_fresh_process_installs_it_when_it_makes_an_env() -> None:
     assert out.stdout.split() == ["22", "True", "True"]
 
 
+@contextlib.contextmanager
+def task_env(name: str, seed: int) -> Iterator[Any]:
+    """A Meta-World env of class `name` with its first ML1 goal set, closed afterwards."""
+    bench = load_benchmark("ML1", name, 0)
+    env = dict(bench.train_classes)[name]()
+    try:
+        env.seed(seed)
+        env.set_task(bench.train_tasks[0])
+        yield env
+    finally:
+        env.close()
+
+
 PATCHED_CLASSES = sorted(
     name
     for name, cls in ALL_V3_ENVIRONMENTS.items()
@@ -118,11 +133,7 @@ PATCHED_CLASSES = sorted(
 def test_observations_match_scipys_in_every_patched_class(
     name: str, fast_paths: None, no_fallback: None
 ) -> None:
-    bench = load_benchmark("ML1", name, 0)
-    env = dict(bench.train_classes)[name]()
-    try:
-        env.seed(3)
-        env.set_task(bench.train_tasks[0])
+    with task_env(name, seed=3) as env:
         env.reset()
         actions = np.random.default_rng(3).uniform(-1, 1, (25, 4)).astype(np.float32)
         for action in actions:
@@ -134,8 +145,6 @@ def test_observations_match_scipys_in_every_patched_class(
             assert sys.modules[type(env).__module__].Rotation is MatrixRotation
             with_stand_in = env._get_obs()
             assert np.array_equal(with_stand_in, with_scipy)
-    finally:
-        env.close()
 
 
 CONTACT_CLASSES = sorted(
@@ -166,11 +175,7 @@ def test_the_contact_test_matches_metaworlds_along_a_grasp(name: str, fast_paths
     assert metaworld_code is not touching_object
     metaworld_fast_paths.install(True)
     assert SawyerXYZEnv.touching_object is touching_object
-    bench = load_benchmark("ML1", name, 0)
-    env = dict(bench.train_classes)[name]()
-    try:
-        env.seed(5)
-        env.set_task(bench.train_tasks[0])
+    with task_env(name, seed=5) as env:
         obs, _ = env.reset()
         touching = 0
         for step in range(150):
@@ -179,8 +184,6 @@ def test_the_contact_test_matches_metaworlds_along_a_grasp(name: str, fast_paths
             expected = metaworld_code(env, object_id)
             assert touching_object(env, object_id) == expected, f"step {step}"
             touching += bool(expected)
-    finally:
-        env.close()
     # The grasp must reach states where the answer is yes, or the comparison proves little.
     if name in ("pick-place-v3", "pick-place-wall-v3", "push-v3", "shelf-place-v3"):
         assert touching > 0
