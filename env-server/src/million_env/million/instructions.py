@@ -154,16 +154,15 @@ def noise_rows() -> npt.NDArray[np.int64]:
     frequency) that no shipped sentence uses, training or held-out: a word that replaces
     another under `word_noise` never teaches a held-out paraphrase's words."""
     table = glove()
+    goal_counts = [int(count) for count in read_data_file(POINT_GOAL_FILE).get("goal_names", {})]
     used = set()
     for instruction_set in INSTRUCTION_SETS:
         groups = [*metaworld_instructions(instruction_set).values()]
-        data = read_data_file(POINT_GOAL_FILE)
-        groups.append(_sentence_list(POINT_GOAL_FILE, data.get(instruction_set)))
-        for names in data.get("goal_names", {}).values():
-            used.update(str(name).lower() for name in names)
+        for count in goal_counts:
+            groups.extend(point_goal_instructions(instruction_set, count).values())
         for group in groups:
             for sentence in group:
-                used.update(tokenize(sentence.replace("{goal}", " ")))
+                used.update(tokenize(sentence))
     used_rows = {row for row in (table.row(word) for word in used) if row is not None}
     return np.array(
         [row for row in range(NOISE_VOCABULARY) if row not in used_rows], dtype=np.int64
