@@ -296,6 +296,10 @@ pub struct BufferConfig {
     pub target_period: usize,
     /// Upper bound on (samples consumed) / (samples produced).
     pub replay_ratio: f64,
+    /// Lower bound on the same ratio (0: none). While the learner is more than a batch
+    /// behind it, the actor holds its envs, so a run makes the same updates per agent step
+    /// on a machine whose envs outpace its learner as on one where they do not.
+    pub min_replay_ratio: f64,
     /// The learner starts once the buffer holds this many segments (at least `batch_segments`).
     pub min_segments: usize,
 }
@@ -306,6 +310,7 @@ impl Default for BufferConfig {
             batch_segments: 128,
             target_period: 100,
             replay_ratio: 4.0,
+            min_replay_ratio: 0.0,
             min_segments: 128,
         }
     }
@@ -489,6 +494,12 @@ impl AgentConfig {
         }
         if self.buffer.replay_ratio <= 0.0 {
             return bad("buffer.replay_ratio must be > 0".into());
+        }
+        if !(0.0..=self.buffer.replay_ratio).contains(&self.buffer.min_replay_ratio) {
+            return bad(format!(
+                "buffer.min_replay_ratio must lie in [0, replay_ratio = {}], got {}",
+                self.buffer.replay_ratio, self.buffer.min_replay_ratio
+            ));
         }
         if self.buffer.min_segments > self.buffer.capacity() {
             return bad("buffer.min_segments exceeds the buffer capacity".into());

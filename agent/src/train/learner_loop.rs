@@ -12,7 +12,7 @@ use std::time::Duration;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 
-use crate::algo::buffer::{BufferCounters, SegmentBatch, SegmentBuffer};
+use crate::algo::buffer::{BufferCounters, ReplayFloor, SegmentBatch, SegmentBuffer};
 use crate::checkpoint;
 use crate::learner::{Learner, UpdateMetrics};
 use crate::train::weights::{WeightBoard, nice_current_thread, thread_cpu_seconds};
@@ -23,6 +23,7 @@ pub struct LearnerProgress {
     pub updates: u64,
     pub last: Option<UpdateMetrics>,
     pub replay_ratio: f64,
+    pub buffer_counters: BufferCounters,
     pub buffer_len: usize,
     pub cpu_seconds: f64,
     pub skipped_updates: u64,
@@ -123,6 +124,7 @@ pub fn run_learner(args: LearnerThreadArgs) -> LearnerThreadResult {
             p.last = metrics;
         }
         p.replay_ratio = buffer.replay_ratio();
+        p.buffer_counters = buffer.counters();
         p.buffer_len = buffer.len();
         p.cpu_seconds = thread_cpu_seconds();
         p.skipped_updates = skipped;
@@ -130,5 +132,26 @@ pub fn run_learner(args: LearnerThreadArgs) -> LearnerThreadResult {
     LearnerThreadResult {
         buffer_counters: buffer.counters(),
         learner,
+    }
+}
+
+/// Holds the actor while `floor` says the learner is behind (`buffer.min_replay_ratio`), or
+/// until `learner_running` turns false; returns how long it waited.
+pub async fn wait_for_learner(
+    floor: &ReplayFloor,
+    shared: &Shared,
+    learner_running: impl Fn() -> bool,
+) -> Duration {
+    let start = std::time::Instant::now();
+    loop {
+        let (counters, len) = {
+            let p = shared.progress.lock().expect("lock");
+            (p.buffer_counters, p.buffer_len)
+        };
+        if !floor.holds_actor(counters, len) || !learner_running() {
+            return start.elapsed();
+        }
+        // An update takes tens of milliseconds or more; a millisecond's poll costs nothing.
+        tokio::time::sleep(Duration::from_millis(1)).await;
     }
 }

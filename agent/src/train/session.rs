@@ -14,7 +14,7 @@ use million_env::{AutoresetMode, EnvPool, PoolConfig, SupervisedServer};
 use serde::Serialize;
 use tch::nn::VarStore;
 
-use crate::algo::buffer::SegmentBuffer;
+use crate::algo::buffer::{ReplayFloor, SegmentBuffer};
 use crate::checkpoint;
 use crate::learner::Learner;
 use crate::metrics::{MetricsWriter, Scalars};
@@ -22,7 +22,7 @@ use crate::model::Model;
 use crate::run_config::RunConfig;
 use crate::train::actor::{ActionBounds, GroupActor};
 use crate::train::eval::{EvalReport, Evaluator};
-use crate::train::learner_loop::{LearnerThreadArgs, Shared, run_learner};
+use crate::train::learner_loop::{LearnerThreadArgs, Shared, run_learner, wait_for_learner};
 use crate::train::outcomes::{EpisodeReturns, SuccessTable, TrialTracker};
 use crate::train::servers::{EnvAccess, client_config, start_local_servers};
 use crate::train::weights::thread_cpu_seconds;
@@ -241,6 +241,8 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let mut trials = TrialTracker::new(pool.num_envs(), &pool.spec().env_id);
     let mut last_log = (Instant::now(), agent_steps, 0u64);
     let mut weights_version = 0u64;
+    let replay_floor = ReplayFloor::new(&cfg.buffer);
+    let mut actor_wait_s = 0.0;
     let mut groups: Vec<GroupActor> = (0..pool.num_groups())
         .map(|g| GroupActor::new(&model, &pool, g))
         .collect();
@@ -268,6 +270,12 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                 }
                 returns.record(g.offset, &step);
                 agent_steps += step.rows() as u64;
+                if let Some(floor) = &replay_floor {
+                    actor_wait_s +=
+                        wait_for_learner(floor, &shared, || !learner_handle.is_finished())
+                            .await
+                            .as_secs_f64();
+                }
                 g.act_and_send(&model, &mut pool, &bounds, false)?;
             }
             shared.agent_steps.store(agent_steps, Ordering::Relaxed);
@@ -294,6 +302,8 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                 s.insert("train/replay_ratio".into(), progress.replay_ratio);
                 s.insert("train/buffer_segments".into(), progress.buffer_len as f64);
                 s.insert("cpu/actor_s".into(), thread_cpu_seconds() - cpu_start);
+                // Seconds the actor held its envs for buffer.min_replay_ratio.
+                s.insert("train/actor_wait_s".into(), actor_wait_s);
                 s.insert("cpu/learner_s".into(), progress.cpu_seconds);
                 let restarts: u64 = local_servers.iter().map(SupervisedServer::restarts).sum();
                 s.insert("env/local_server_restarts".into(), restarts as f64);
