@@ -7,40 +7,18 @@
 //! Real parts throughout: a local million-env-server, the gRPC env pool, libtorch.
 //! Runs alone (nextest test group `learning`, max-threads 1) so nothing competes for the CPU.
 
-use std::path::Path;
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+mod common;
 
+use std::path::Path;
+
+use common::{shipped_config, train_in};
 use million::run_config::RunConfig;
-use million::train::session::{TrainOptions, TrainSummary, train};
+use million::train::session::TrainSummary;
 
 const WALL_BUDGET_S: f64 = 600.0;
 
-fn config(name: &str) -> RunConfig {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../configs")
-        .join(name);
-    RunConfig::from_file(&path).expect("shipped config")
-}
-
 fn run(cfg: RunConfig, run_dir: &Path) -> TrainSummary {
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(cfg.runtime.io_threads)
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(train(TrainOptions {
-        config: cfg,
-        servers: vec![],
-        env_access: Default::default(),
-        run_dir: Some(run_dir.to_owned()),
-        resume: false,
-        progress: false,
-        max_seconds: Some(WALL_BUDGET_S),
-        evaluate: true,
-        interrupt: Arc::new(AtomicBool::new(false)),
-    }))
-    .expect("training runs")
+    train_in(cfg, run_dir, true, WALL_BUDGET_S)
 }
 
 fn split<'a>(s: &'a TrainSummary, name: &str) -> &'a million::train::eval::EvalReport {
@@ -53,7 +31,10 @@ fn split<'a>(s: &'a TrainSummary, name: &str) -> &'a million::train::eval::EvalR
 #[test]
 fn quickstart_learns_to_follow_instructions_and_the_ablation_does_not() {
     let dir = tempfile::tempdir().unwrap();
-    let quick = run(config("quickstart.toml"), &dir.path().join("quickstart"));
+    let quick = run(
+        shipped_config("quickstart.toml"),
+        &dir.path().join("quickstart"),
+    );
     for p in &quick.curve {
         eprintln!(
             "quickstart {:>8} steps {:>6.1} s  {:<5} success {:.3}  first trials {:.3}",
@@ -93,7 +74,7 @@ fn quickstart_learns_to_follow_instructions_and_the_ablation_does_not() {
     );
     assert_eq!(meta.counters.agent_steps, quick.agent_steps);
 
-    let mut ablation = config("ablations/quickstart-no-instructions.toml");
+    let mut ablation = shipped_config("ablations/quickstart-no-instructions.toml");
     ablation.train.total_agent_steps = quick.agent_steps;
     ablation.train.eval_interval = 0;
     let blind = run(ablation, &dir.path().join("no-instructions"));

@@ -1,19 +1,13 @@
 //! `buffer.min_replay_ratio`: a short real quickstart run (local env server, libtorch) whose
 //! envs outpace its learner keeps its replay ratio at the floor by holding the actor.
 
-use std::path::Path;
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+mod common;
 
-use million::run_config::RunConfig;
-use million::train::session::{TrainOptions, train};
+use common::{shipped_config, train_in};
 
 #[test]
 fn the_actor_waits_for_the_learner_at_the_replay_floor() {
-    let mut cfg = RunConfig::from_file(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/quickstart.toml"),
-    )
-    .unwrap();
+    let mut cfg = shipped_config("quickstart.toml");
     cfg.train.total_agent_steps = 8_192;
     cfg.train.log_interval = 1_024;
     cfg.train.eval_interval = 0;
@@ -23,24 +17,7 @@ fn the_actor_waits_for_the_learner_at_the_replay_floor() {
     cfg.buffer.replay_ratio = 16.0;
     cfg.buffer.min_replay_ratio = 16.0;
     let dir = tempfile::tempdir().unwrap();
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
-    let summary = rt
-        .block_on(train(TrainOptions {
-            config: cfg,
-            servers: vec![],
-            env_access: Default::default(),
-            run_dir: Some(dir.path().to_owned()),
-            resume: false,
-            progress: false,
-            max_seconds: Some(600.0),
-            evaluate: false,
-            interrupt: Arc::new(AtomicBool::new(false)),
-        }))
-        .expect("training runs");
+    let summary = train_in(cfg, dir.path(), false, 600.0);
     // The last round's 32 segments may still wait for their updates: 16 · (256 - 32) / 256 = 14.
     assert!(
         summary.replay_ratio >= 13.0,

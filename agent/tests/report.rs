@@ -2,13 +2,12 @@
 //! config cut to a few thousand steps) writes every figure, and report.md says what
 //! metrics.jsonl says; synthetic runs check the figures for one task and for ML45's 50.
 
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+mod common;
 
+use std::path::{Path, PathBuf};
+
+use common::{shipped_config, train_in};
 use million::report::write_report;
-use million::run_config::RunConfig;
-use million::train::session::{TrainOptions, train};
 
 /// Width and height of a PNG file, from its IHDR chunk.
 fn png_size(path: &Path) -> (u32, u32) {
@@ -47,10 +46,7 @@ fn last_value(
 
 #[test]
 fn report_of_a_short_real_run_matches_its_metrics() {
-    let mut cfg = RunConfig::from_file(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/quickstart.toml"),
-    )
-    .unwrap();
+    let mut cfg = shipped_config("quickstart.toml");
     cfg.train.total_agent_steps = 6_000;
     cfg.train.eval_interval = 2_000;
     cfg.train.log_interval = 1_000;
@@ -59,23 +55,7 @@ fn report_of_a_short_real_run_matches_its_metrics() {
     cfg.eval.episodes = 8;
     let dir = tempfile::tempdir().unwrap();
     let run = dir.path().join("short");
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
-    rt.block_on(train(TrainOptions {
-        config: cfg,
-        servers: vec![],
-        env_access: Default::default(),
-        run_dir: Some(run.clone()),
-        resume: false,
-        progress: false,
-        max_seconds: Some(300.0),
-        evaluate: true,
-        interrupt: Arc::new(AtomicBool::new(false)),
-    }))
-    .expect("training runs");
+    train_in(cfg, &run, true, 300.0);
 
     let out = dir.path().join("report");
     let report = write_report(std::slice::from_ref(&run), &out).unwrap();

@@ -2,11 +2,13 @@
 //! with the frame count the episode implies (one per word, one per rendered trial step, one
 //! per trial outcome).
 
+mod common;
+
 use std::path::Path;
 use std::time::Instant;
 
+use common::{runtime, shipped_config};
 use million::model::Model;
-use million::run_config::RunConfig;
 use million::video::{VideoOptions, record_split};
 use million_env::{
     ClientConfig, EnvClient, LocalServer, LocalServerOptions, default_server_binary,
@@ -28,21 +30,14 @@ fn gif_frames(path: &Path) -> (usize, u16, u16) {
 
 #[test]
 fn a_video_per_goal_with_the_expected_frames() {
-    let cfg = RunConfig::from_file(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("../configs/quickstart.toml"),
-    )
-    .unwrap();
+    let cfg = shipped_config("quickstart.toml");
     tch::manual_seed(0);
     let vs = VarStore::new(tch::Device::Cpu);
     // Untrained weights: the test is about the video, not about what the agent learned.
     let model = Model::new(&vs.root(), &cfg.model, &cfg.popart);
     let split = cfg.eval_splits().unwrap().remove(0);
     let dir = tempfile::tempdir().unwrap();
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(1)
-        .enable_all()
-        .build()
-        .unwrap();
+    let rt = runtime(1);
     let opts = VideoOptions {
         every: 3,
         width: 64,

@@ -1,8 +1,52 @@
-//! Shared helpers: a small model config so tests stay fast on 2 cores.
+//! Shared helpers: a small model config so tests stay fast on 2 cores, and short real
+//! training runs of a shipped config (local env servers, libtorch).
 #![allow(dead_code)]
 
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
 use million::config::{AgentConfig, ModelConfig, ObsField};
+use million::run_config::RunConfig;
+use million::train::session::{TrainOptions, TrainSummary, train};
 use tch::{Kind, Tensor};
+
+/// The repository's root, where `configs/` lives.
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// A config shipped under `configs/`, e.g. `"quickstart.toml"` or `"ablations/…"`.
+pub fn shipped_config(name: &str) -> RunConfig {
+    RunConfig::from_file(&repo().join("configs").join(name)).expect("shipped config")
+}
+
+/// A tokio runtime with `threads` workers, as `million` builds one.
+pub fn runtime(threads: usize) -> tokio::runtime::Runtime {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(threads)
+        .enable_all()
+        .build()
+        .unwrap()
+}
+
+/// Trains `cfg` into `run_dir` with its own local env servers, for at most `max_seconds`,
+/// with (`evaluate`) or without evaluations, as `million train` would.
+pub fn train_in(cfg: RunConfig, run_dir: &Path, evaluate: bool, max_seconds: f64) -> TrainSummary {
+    runtime(cfg.runtime.io_threads)
+        .block_on(train(TrainOptions {
+            config: cfg,
+            servers: vec![],
+            env_access: Default::default(),
+            run_dir: Some(run_dir.to_owned()),
+            resume: false,
+            progress: false,
+            max_seconds: Some(max_seconds),
+            evaluate,
+            interrupt: Arc::new(AtomicBool::new(false)),
+        }))
+        .expect("training runs")
+}
 
 pub fn small_model(segment_len: usize, memory_len: usize) -> ModelConfig {
     ModelConfig {
