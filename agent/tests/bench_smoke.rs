@@ -148,3 +148,64 @@ fn bench_learner_and_acting_run_on_the_quickstart_model() {
     ]);
     assert!(acting.contains("agent steps/s"), "{acting}");
 }
+
+/// `bench learning` on the quickstart for 20 seconds: a target of 0 is met at the first
+/// evaluation, one above 1 never is, the ablation is trained for at least the same steps and
+/// its first-trial gap is the difference of the two runs' figures; an existing run directory
+/// is refused.
+#[test]
+fn bench_learning_reports_targets_and_the_ablation_gap() {
+    let dir = tempfile::tempdir().unwrap();
+    let runs = dir.path().join("bench");
+    let runs_arg = runs.to_str().unwrap();
+    let args = [
+        "bench",
+        "learning",
+        "--config",
+        "configs/quickstart.toml",
+        "--ablation",
+        "configs/ablations/quickstart-no-instructions.toml",
+        "--minutes",
+        "0.33",
+        "--train-target",
+        "0",
+        "--test-target",
+        "1.01",
+        "--run-dir",
+        runs_arg,
+        "--json",
+    ];
+    let report: Value = serde_json::from_str(&million(&args)).unwrap();
+    let steps = report["agent_steps"].as_u64().unwrap();
+    assert!(steps > 0, "{report}");
+    let splits = report["splits"].as_array().unwrap();
+    assert_eq!(splits.len(), 2, "{report}");
+    let (train, test) = (&splits[0], &splits[1]);
+    assert_eq!(train["split"], "train");
+    let first = &train["first_met"];
+    assert!(first["agent_steps"].as_u64().unwrap() <= steps, "{train}");
+    assert!(first["minutes"].as_f64().unwrap() > 0.0, "{train}");
+    assert_eq!(test["split"], "test");
+    assert!(test["first_met"].is_null(), "{test}");
+    assert_eq!(test["last"]["agent_steps"].as_u64().unwrap(), steps);
+    let ablation = &report["ablation"];
+    assert!(
+        ablation["agent_steps"].as_u64().unwrap() >= steps,
+        "{ablation}"
+    );
+    let gaps = ablation["gaps"].as_array().unwrap();
+    assert!(!gaps.is_empty(), "{ablation}");
+    for g in gaps {
+        let d = g["with"].as_f64().unwrap() - g["without"].as_f64().unwrap();
+        assert!((g["gap"].as_f64().unwrap() - d).abs() < 1e-9, "{g}");
+    }
+    assert!(runs.join("run/metrics.jsonl").is_file());
+    assert!(runs.join("ablation/metrics.jsonl").is_file());
+
+    let again = run_million(args);
+    let stderr = String::from_utf8_lossy(&again.stderr);
+    assert!(
+        !again.status.success() && stderr.contains("exists"),
+        "{stderr}"
+    );
+}

@@ -1,7 +1,5 @@
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use clap::{Args, Subcommand};
@@ -31,6 +29,9 @@ pub enum BenchCommand {
     Train(TrainBench),
     /// Env steps/s served through the API against the same envs stepped in-process.
     Env(super::bench_env::EnvBench),
+    /// Whether a config learns to its success targets within a wall-clock budget, and its
+    /// first-trial gap to an ablation at the same agent steps (the ladder's targets).
+    Learning(super::bench_learning::LearningBench),
 }
 
 #[derive(Debug, Args)]
@@ -137,6 +138,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
         }
         BenchCommand::Train(b) => train_bench(b)?,
         BenchCommand::Env(b) => return super::bench_env::run(&b),
+        BenchCommand::Learning(b) => super::bench_learning::run(&b)?,
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -159,15 +161,10 @@ fn train_bench(b: TrainBench) -> anyhow::Result<()> {
     let rt = super::runtime(cfg.runtime.io_threads)?;
     let children = ChildSampler::start(Duration::from_millis(500));
     let summary = rt.block_on(train(TrainOptions {
-        config: cfg,
         servers: b.env_servers,
-        env_access: Default::default(),
-        run_dir: None,
-        resume: false,
-        progress: false,
         max_seconds: Some(b.seconds),
         evaluate: false,
-        interrupt: Arc::new(AtomicBool::new(false)),
+        ..TrainOptions::local(cfg)
     }))?;
     let env_servers = children.finish();
     let agent = procstat::usage(std::process::id()).unwrap_or_default();

@@ -3,6 +3,7 @@
 mod access;
 mod bench;
 mod bench_env;
+mod bench_learning;
 mod bench_reference;
 mod env_check;
 mod eval;

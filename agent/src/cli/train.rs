@@ -1,4 +1,4 @@
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -35,20 +35,24 @@ pub struct TrainArgs {
     pub access: EnvAccessArgs,
 }
 
+/// `runs/<prefix><config name>[-seedN]`: where a run of `config` goes unless told.
+pub(super) fn default_run_dir(prefix: &str, config: &Path, seed: Option<u64>) -> PathBuf {
+    let name = config
+        .file_stem()
+        .map_or_else(|| "run".into(), |s| s.to_string_lossy().into_owned());
+    let suffix = seed.map(|n| format!("-seed{n}")).unwrap_or_default();
+    PathBuf::from("runs").join(format!("{prefix}{name}{suffix}"))
+}
+
 pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
     let mut config = RunConfig::from_file(&a.config)?;
     if let Some(n) = a.seed {
         config.env.replicate(n);
     }
     let env_access = a.access.resolve()?;
-    let run_dir = a.run_dir.unwrap_or_else(|| {
-        let name = a
-            .config
-            .file_stem()
-            .map_or_else(|| "run".into(), |s| s.to_string_lossy().into_owned());
-        let suffix = a.seed.map(|n| format!("-seed{n}")).unwrap_or_default();
-        PathBuf::from("runs").join(name + &suffix)
-    });
+    let run_dir = a
+        .run_dir
+        .unwrap_or_else(|| default_run_dir("", &a.config, a.seed));
     let rt = super::runtime(config.runtime.io_threads)?;
     let interrupt = Arc::new(AtomicBool::new(false));
     let summary = rt.block_on(async {
@@ -60,15 +64,13 @@ pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
             }
         });
         train(TrainOptions {
-            config,
             servers: a.env_servers,
             env_access,
             run_dir: Some(run_dir.clone()),
             resume: a.resume,
             progress: true,
-            max_seconds: None,
-            evaluate: true,
             interrupt,
+            ..TrainOptions::local(config)
         })
         .await
     })?;

@@ -51,6 +51,24 @@ pub struct TrainOptions {
     pub interrupt: Arc<AtomicBool>,
 }
 
+impl TrainOptions {
+    /// A fresh run of `config` on its own local env servers, evaluated, writing nothing
+    /// (set `run_dir`), without a time limit, progress bar or interrupt flag anyone holds.
+    pub fn local(config: RunConfig) -> Self {
+        Self {
+            config,
+            servers: vec![],
+            env_access: EnvAccess::default(),
+            run_dir: None,
+            resume: false,
+            progress: false,
+            max_seconds: None,
+            evaluate: true,
+            interrupt: Arc::new(AtomicBool::new(false)),
+        }
+    }
+}
+
 /// One point of the learning curve.
 #[derive(Debug, Clone, Serialize)]
 pub struct CurvePoint {

@@ -3,8 +3,6 @@
 #![allow(dead_code)]
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
 
 use million::config::{AgentConfig, ModelConfig, ObsField};
 use million::run_config::RunConfig;
@@ -35,15 +33,10 @@ pub fn runtime(threads: usize) -> tokio::runtime::Runtime {
 pub fn train_in(cfg: RunConfig, run_dir: &Path, evaluate: bool, max_seconds: f64) -> TrainSummary {
     runtime(cfg.runtime.io_threads)
         .block_on(train(TrainOptions {
-            config: cfg,
-            servers: vec![],
-            env_access: Default::default(),
             run_dir: Some(run_dir.to_owned()),
-            resume: false,
-            progress: false,
             max_seconds: Some(max_seconds),
             evaluate,
-            interrupt: Arc::new(AtomicBool::new(false)),
+            ..TrainOptions::local(cfg)
         }))
         .expect("training runs")
 }

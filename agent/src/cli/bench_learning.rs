@@ -1,0 +1,315 @@
+//! `million bench learning`: does a config learn to its targets within a wall-clock budget?
+//!
+//! The learning targets of the ladder (e.g. ML1-reach: train success ≥ 0.9 and held-out
+//! success ≥ 0.8 within 60 minutes, first trials ≥ 0.3 above the no-instructions ablation)
+//! take longer than CI allows, so they are a bench that is run and recorded (LEARNING.md), not
+//! a test. It trains the config for at most `--minutes` (local env servers, deterministic
+//! evaluations at the config's `eval_interval` and at the end), then, with `--ablation`, the
+//! ablation config for the same agent steps, evaluated at the same steps. It reports when each
+//! split first reached its target (agent steps and minutes, evaluations included), each split's
+//! best and last figures, and the first-trial gap to the ablation at every shared evaluation.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Context;
+use clap::Args;
+use serde::Serialize;
+
+use crate::run_config::RunConfig;
+use crate::train::session::{CurvePoint, TrainOptions, TrainSummary, train};
+
+#[derive(Debug, Args)]
+pub struct LearningBench {
+    /// Run config to train, e.g. configs/ladder/2-ml1-reach-instruction-slots-range.toml.
+    #[arg(long)]
+    pub config: PathBuf,
+    /// The same run without what is tested (e.g. configs/ladder/2-ml1-reach-no-instructions.toml),
+    /// trained for as many agent steps as the config reached.
+    #[arg(long)]
+    pub ablation: Option<PathBuf>,
+    /// Wall-clock budget of the config's training, evaluations included.
+    #[arg(long, default_value_t = 60.0)]
+    pub minutes: f64,
+    /// Replicate N (as `million train --seed`), for both runs.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Success to reach on the train split.
+    #[arg(long, default_value_t = 0.9)]
+    pub train_target: f64,
+    /// Success to reach on the test split (held-out goals or sentences).
+    #[arg(long, default_value_t = 0.8)]
+    pub test_target: f64,
+    /// How far the config's first-trial success must lie above the ablation's.
+    #[arg(long, default_value_t = 0.3)]
+    pub first_trial_gap: f64,
+    /// Directory of the two runs (DIR/run, DIR/ablation); it must not exist yet. Default
+    /// runs/bench-learning-<config name>[-seedN].
+    #[arg(long)]
+    pub run_dir: Option<PathBuf>,
+    /// One JSON object instead of text.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// A split's figure at one evaluation.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Milestone {
+    pub agent_steps: u64,
+    pub minutes: f64,
+    pub success: f64,
+    pub first_trial: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct SplitResult {
+    pub split: String,
+    pub target: f64,
+    /// The first evaluation at or above the target, if any.
+    pub first_met: Option<Milestone>,
+    pub best: Milestone,
+    pub last: Milestone,
+}
+
+/// The config's first-trial success minus the ablation's, at one shared evaluation.
+#[derive(Debug, Serialize)]
+pub struct GapPoint {
+    pub split: String,
+    pub agent_steps: u64,
+    pub with: f64,
+    pub without: f64,
+    pub gap: f64,
+}
+
+#[derive(Debug, Serialize)]
+pub struct AblationResult {
+    pub config: PathBuf,
+    pub agent_steps: u64,
+    pub minutes: f64,
+    pub target_gap: f64,
+    /// Gaps at every evaluation both runs made at the same agent steps.
+    pub gaps: Vec<GapPoint>,
+    /// Whether the gap at the last shared evaluation reaches the target on every split.
+    pub final_gap_met: bool,
+}
+
+#[derive(Debug, Serialize)]
+pub struct LearningReport {
+    pub config: PathBuf,
+    pub seed: Option<u64>,
+    pub budget_minutes: f64,
+    pub agent_steps: u64,
+    pub minutes: f64,
+    pub agent_steps_per_s: f64,
+    pub replay_ratio: f64,
+    pub run_dir: PathBuf,
+    pub splits: Vec<SplitResult>,
+    pub ablation: Option<AblationResult>,
+}
+
+pub fn run(b: &LearningBench) -> anyhow::Result<()> {
+    let run_dir = b
+        .run_dir
+        .clone()
+        .unwrap_or_else(|| super::train::default_run_dir("bench-learning-", &b.config, b.seed));
+    anyhow::ensure!(
+        !run_dir.exists(),
+        "{} exists: a learning bench starts from scratch (move it away or pass --run-dir)",
+        run_dir.display()
+    );
+    anyhow::ensure!(b.minutes > 0.0, "--minutes must be > 0");
+    let mut cfg = load(&b.config, b.seed)?;
+    anyhow::ensure!(
+        cfg.train.eval_interval > 0,
+        "{}: train.eval_interval is 0, so there is no curve to read targets from",
+        b.config.display()
+    );
+    let eval_interval = cfg.train.eval_interval;
+    // The budget is wall-clock: the config's step count and early stop do not end it sooner.
+    cfg.train.total_agent_steps = u64::MAX;
+    cfg.train.stop_at_success = 2.0;
+    let main = train_run(cfg, &run_dir.join("run"), b.minutes * 60.0)?;
+    let splits = [("train", b.train_target), ("test", b.test_target)]
+        .into_iter()
+        .filter_map(|(split, target)| split_result(&main.curve, split, target))
+        .collect();
+
+    let ablation = match &b.ablation {
+        None => None,
+        Some(path) => {
+            let mut cfg = load(path, b.seed)?;
+            cfg.train.total_agent_steps = main.agent_steps;
+            cfg.train.eval_interval = eval_interval;
+            cfg.train.stop_at_success = 2.0;
+            // Generous: the ablation has a step budget; this only guards against a hang.
+            let blind = train_run(cfg, &run_dir.join("ablation"), 4.0 * b.minutes * 60.0)?;
+            Some(ablation_result(
+                path,
+                &main,
+                &blind,
+                b.first_trial_gap,
+                eval_interval / 20,
+            ))
+        }
+    };
+    let report = LearningReport {
+        config: b.config.clone(),
+        seed: b.seed,
+        budget_minutes: b.minutes,
+        agent_steps: main.agent_steps,
+        minutes: main.wall_s / 60.0,
+        agent_steps_per_s: main.agent_steps_per_s,
+        replay_ratio: main.replay_ratio,
+        run_dir,
+        splits,
+        ablation,
+    };
+    if b.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print_report(&report);
+    }
+    Ok(())
+}
+
+fn load(path: &Path, seed: Option<u64>) -> anyhow::Result<RunConfig> {
+    let mut cfg = RunConfig::from_file(path)?;
+    if let Some(n) = seed {
+        cfg.env.replicate(n);
+    }
+    Ok(cfg)
+}
+
+fn train_run(cfg: RunConfig, dir: &Path, max_seconds: f64) -> anyhow::Result<TrainSummary> {
+    let rt = super::runtime(cfg.runtime.io_threads)?;
+    rt.block_on(train(TrainOptions {
+        run_dir: Some(dir.to_owned()),
+        max_seconds: Some(max_seconds),
+        ..TrainOptions::local(cfg)
+    }))
+    .with_context(|| format!("training into {}", dir.display()))
+}
+
+fn milestones<'a>(curve: &'a [CurvePoint], split: &'a str) -> impl Iterator<Item = Milestone> + 'a {
+    curve
+        .iter()
+        .filter(move |p| p.split == split)
+        .map(|p| Milestone {
+            agent_steps: p.agent_steps,
+            minutes: p.wall_s / 60.0,
+            success: p.success,
+            first_trial: p.first_trial,
+        })
+}
+
+/// The split's first evaluation at or above `target`, its best and its last; None when the
+/// run has no evaluation of that split.
+pub fn split_result(curve: &[CurvePoint], split: &str, target: f64) -> Option<SplitResult> {
+    let points: Vec<Milestone> = milestones(curve, split).collect();
+    let last = *points.last()?;
+    let best = *points
+        .iter()
+        .max_by(|a, b| a.success.total_cmp(&b.success))
+        .expect("not empty");
+    Some(SplitResult {
+        split: split.to_owned(),
+        target,
+        first_met: points.iter().find(|m| m.success >= target).copied(),
+        best,
+        last,
+    })
+}
+
+/// First-trial gaps at the evaluations both runs made at the same agent steps (within
+/// `within` steps: runs with other env counts step in other increments). A run's final
+/// evaluation may repeat its last periodic one's step; the later (final) figure is kept.
+pub fn ablation_result(
+    config: &Path,
+    with: &TrainSummary,
+    without: &TrainSummary,
+    target_gap: f64,
+    within: u64,
+) -> AblationResult {
+    let mut gaps = vec![];
+    let mut final_gap_met = true;
+    for split in ["train", "test"] {
+        let theirs: Vec<Milestone> = milestones(&without.curve, split).collect();
+        let mut split_gaps: Vec<GapPoint> = vec![];
+        for m in milestones(&with.curve, split) {
+            let Some(o) = theirs
+                .iter()
+                .rev()
+                .filter(|o| o.agent_steps.abs_diff(m.agent_steps) <= within)
+                .min_by_key(|o| o.agent_steps.abs_diff(m.agent_steps))
+            else {
+                continue;
+            };
+            split_gaps.retain(|g| g.agent_steps != m.agent_steps);
+            split_gaps.push(GapPoint {
+                split: split.to_owned(),
+                agent_steps: m.agent_steps,
+                with: m.first_trial,
+                without: o.first_trial,
+                gap: m.first_trial - o.first_trial,
+            });
+        }
+        if let Some(g) = split_gaps.last() {
+            final_gap_met &= g.gap >= target_gap;
+        }
+        gaps.extend(split_gaps);
+    }
+    AblationResult {
+        config: config.to_owned(),
+        agent_steps: without.agent_steps,
+        minutes: without.wall_s / 60.0,
+        target_gap,
+        final_gap_met: final_gap_met && !gaps.is_empty(),
+        gaps,
+    }
+}
+
+fn print_report(r: &LearningReport) {
+    println!(
+        "{}: {} agent steps in {:.1} min (budget {:.1}; {:.0} steps/s, replay ratio {:.2}); runs in {}",
+        r.config.display(),
+        r.agent_steps,
+        r.minutes,
+        r.budget_minutes,
+        r.agent_steps_per_s,
+        r.replay_ratio,
+        r.run_dir.display()
+    );
+    for s in &r.splits {
+        let met = match &s.first_met {
+            Some(m) => format!(
+                "MET at {} steps, {:.1} min ({:.3})",
+                m.agent_steps, m.minutes, m.success
+            ),
+            None => "NOT MET".into(),
+        };
+        println!(
+            "  {:<5} success ≥ {:.2}: {met}; best {:.3} at {} steps, last {:.3} (first trials {:.3})",
+            s.split,
+            s.target,
+            s.best.success,
+            s.best.agent_steps,
+            s.last.success,
+            s.last.first_trial
+        );
+    }
+    if let Some(a) = &r.ablation {
+        println!(
+            "  ablation {} ({} steps in {:.1} min): first-trial gap ≥ {:.2} at the end: {}",
+            a.config.display(),
+            a.agent_steps,
+            a.minutes,
+            a.target_gap,
+            if a.final_gap_met { "MET" } else { "NOT MET" }
+        );
+        for g in &a.gaps {
+            println!(
+                "    {:<5} {:>9} steps: first trials {:.3} with, {:.3} without, gap {:+.3}",
+                g.split, g.agent_steps, g.with, g.without, g.gap
+            );
+        }
+    }
+}
