@@ -149,10 +149,10 @@ fn bench_learner_and_acting_run_on_the_quickstart_model() {
     assert!(acting.contains("agent steps/s"), "{acting}");
 }
 
-/// `bench learning` on the quickstart for 20 seconds: a target of 0 is met at the first
-/// evaluation, one above 1 never is, the ablation is trained for at least the same steps and
-/// its first-trial gap is the difference of the two runs' figures; an existing run directory
-/// is refused.
+/// `bench learning` on the quickstart for 20 seconds (then its ablation for the same steps,
+/// and both runs' final evaluations: about a minute): a target of 0 is met at the first
+/// evaluation, one above 1 never is, both runs are compared at the final steps; an existing
+/// run directory is refused.
 #[test]
 fn bench_learning_reports_targets_and_the_ablation_gap() {
     let dir = tempfile::tempdir().unwrap();
@@ -184,7 +184,6 @@ fn bench_learning_reports_targets_and_the_ablation_gap() {
     assert_eq!(train["split"], "train");
     let first = &train["first_met"];
     assert!(first["agent_steps"].as_u64().unwrap() <= steps, "{train}");
-    assert!(first["minutes"].as_f64().unwrap() > 0.0, "{train}");
     assert_eq!(test["split"], "test");
     assert!(test["first_met"].is_null(), "{test}");
     assert_eq!(test["last"]["agent_steps"].as_u64().unwrap(), steps);
@@ -193,11 +192,17 @@ fn bench_learning_reports_targets_and_the_ablation_gap() {
         ablation["agent_steps"].as_u64().unwrap() >= steps,
         "{ablation}"
     );
+    // Both runs are evaluated at the end, at the same steps: each split has a gap there,
+    // whose `with` figure is the run's last first-trial success of that split.
     let gaps = ablation["gaps"].as_array().unwrap();
-    assert!(!gaps.is_empty(), "{ablation}");
-    for g in gaps {
-        let d = g["with"].as_f64().unwrap() - g["without"].as_f64().unwrap();
-        assert!((g["gap"].as_f64().unwrap() - d).abs() < 1e-9, "{g}");
+    for split in splits {
+        let name = &split["split"];
+        let last = gaps
+            .iter()
+            .rfind(|g| &g["split"] == name)
+            .unwrap_or_else(|| panic!("no {name} gap: {ablation}"));
+        assert_eq!(last["agent_steps"].as_u64().unwrap(), steps, "{last}");
+        assert_eq!(last["with"], split["last"]["first_trial"], "{last}");
     }
     assert!(runs.join("run/metrics.jsonl").is_file());
     assert!(runs.join("ablation/metrics.jsonl").is_file());

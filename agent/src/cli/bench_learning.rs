@@ -18,6 +18,10 @@ use serde::Serialize;
 use crate::run_config::RunConfig;
 use crate::train::session::{CurvePoint, TrainOptions, TrainSummary, train};
 
+/// Evaluations of the two runs count as at the same agent steps when they lie within this
+/// fraction of the evaluation interval of each other.
+const SAME_STEPS_FRACTION: u64 = 20;
+
 #[derive(Debug, Args)]
 pub struct LearningBench {
     /// Run config to train, e.g. configs/ladder/2-ml1-reach-instruction-slots-range.toml.
@@ -27,7 +31,8 @@ pub struct LearningBench {
     /// trained for as many agent steps as the config reached.
     #[arg(long)]
     pub ablation: Option<PathBuf>,
-    /// Wall-clock budget of the config's training, evaluations included.
+    /// Wall-clock budget of the config's training, its periodic evaluations included (the
+    /// final evaluation of the weights at the budget's end follows it).
     #[arg(long, default_value_t = 60.0)]
     pub minutes: f64,
     /// Replicate N (as `million train --seed`), for both runs.
@@ -88,7 +93,8 @@ pub struct AblationResult {
     pub target_gap: f64,
     /// Gaps at every evaluation both runs made at the same agent steps.
     pub gaps: Vec<GapPoint>,
-    /// Whether the gap at the last shared evaluation reaches the target on every split.
+    /// Whether, on every split the config evaluated, both runs were evaluated at the config's
+    /// final agent steps and the gap there reaches the target.
     pub final_gap_met: bool,
 }
 
@@ -124,6 +130,12 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
         b.config.display()
     );
     let eval_interval = cfg.train.eval_interval;
+    // Loaded now: a bad ablation config fails before the hour of training, not after it.
+    let ablation_cfg = b
+        .ablation
+        .as_deref()
+        .map(|path| load(path, b.seed).map(|cfg| (path, cfg)))
+        .transpose()?;
     // The budget is wall-clock: the config's step count and early stop do not end it sooner.
     cfg.train.total_agent_steps = u64::MAX;
     cfg.train.stop_at_success = 2.0;
@@ -133,22 +145,32 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
         .filter_map(|(split, target)| split_result(&main.curve, split, target))
         .collect();
 
-    let ablation = match &b.ablation {
+    let ablation = match ablation_cfg {
         None => None,
-        Some(path) => {
-            let mut cfg = load(path, b.seed)?;
+        Some((path, mut cfg)) => {
             cfg.train.total_agent_steps = main.agent_steps;
             cfg.train.eval_interval = eval_interval;
             cfg.train.stop_at_success = 2.0;
             // Generous: the ablation has a step budget; this only guards against a hang.
             let blind = train_run(cfg, &run_dir.join("ablation"), 4.0 * b.minutes * 60.0)?;
-            Some(ablation_result(
-                path,
-                &main,
-                &blind,
-                b.first_trial_gap,
-                eval_interval / 20,
-            ))
+            if blind.agent_steps < main.agent_steps {
+                tracing::warn!(
+                    "the ablation stopped at {} of {} agent steps (time guard)",
+                    blind.agent_steps,
+                    main.agent_steps
+                );
+            }
+            let within = eval_interval / SAME_STEPS_FRACTION;
+            let gaps = first_trial_gaps(&main.curve, &blind.curve, within);
+            let final_gap_met = final_gap_met(&main.curve, &gaps, b.first_trial_gap, within);
+            Some(AblationResult {
+                config: path.to_owned(),
+                agent_steps: blind.agent_steps,
+                minutes: blind.wall_s / 60.0,
+                target_gap: b.first_trial_gap,
+                gaps,
+                final_gap_met,
+            })
         }
     };
     let report = LearningReport {
@@ -206,9 +228,11 @@ fn milestones<'a>(curve: &'a [CurvePoint], split: &'a str) -> impl Iterator<Item
 pub fn split_result(curve: &[CurvePoint], split: &str, target: f64) -> Option<SplitResult> {
     let points: Vec<Milestone> = milestones(curve, split).collect();
     let last = *points.last()?;
-    let best = *points
+    // The earliest of equal bests.
+    let best = points
         .iter()
-        .max_by(|a, b| a.success.total_cmp(&b.success))
+        .copied()
+        .reduce(|best, m| if m.success > best.success { m } else { best })
         .expect("not empty");
     Some(SplitResult {
         split: split.to_owned(),
@@ -222,19 +246,12 @@ pub fn split_result(curve: &[CurvePoint], split: &str, target: f64) -> Option<Sp
 /// First-trial gaps at the evaluations both runs made at the same agent steps (within
 /// `within` steps: runs with other env counts step in other increments). A run's final
 /// evaluation may repeat its last periodic one's step; the later (final) figure is kept.
-pub fn ablation_result(
-    config: &Path,
-    with: &TrainSummary,
-    without: &TrainSummary,
-    target_gap: f64,
-    within: u64,
-) -> AblationResult {
+pub fn first_trial_gaps(with: &[CurvePoint], without: &[CurvePoint], within: u64) -> Vec<GapPoint> {
     let mut gaps = vec![];
-    let mut final_gap_met = true;
     for split in ["train", "test"] {
-        let theirs: Vec<Milestone> = milestones(&without.curve, split).collect();
+        let theirs: Vec<Milestone> = milestones(without, split).collect();
         let mut split_gaps: Vec<GapPoint> = vec![];
-        for m in milestones(&with.curve, split) {
+        for m in milestones(with, split) {
             let Some(o) = theirs
                 .iter()
                 .rev()
@@ -252,19 +269,29 @@ pub fn ablation_result(
                 gap: m.first_trial - o.first_trial,
             });
         }
-        if let Some(g) = split_gaps.last() {
-            final_gap_met &= g.gap >= target_gap;
-        }
         gaps.extend(split_gaps);
     }
-    AblationResult {
-        config: config.to_owned(),
-        agent_steps: without.agent_steps,
-        minutes: without.wall_s / 60.0,
-        target_gap,
-        final_gap_met: final_gap_met && !gaps.is_empty(),
-        gaps,
-    }
+    gaps
+}
+
+/// True when every split of `with` has a gap at its last evaluation's agent steps and that
+/// gap reaches `target`: an ablation cut short, or a split it did not evaluate, is no pass.
+pub fn final_gap_met(with: &[CurvePoint], gaps: &[GapPoint], target: f64, within: u64) -> bool {
+    let mut splits: Vec<&str> = with.iter().map(|p| p.split.as_str()).collect();
+    splits.sort_unstable();
+    splits.dedup();
+    !splits.is_empty()
+        && splits.iter().all(|split| {
+            let last = milestones(with, split)
+                .last()
+                .expect("split from the curve");
+            gaps.iter()
+                .rev()
+                .find(|g| g.split == *split)
+                .is_some_and(|g| {
+                    g.agent_steps.abs_diff(last.agent_steps) <= within && g.gap >= target
+                })
+        })
 }
 
 fn print_report(r: &LearningReport) {
@@ -311,5 +338,77 @@ fn print_report(r: &LearningReport) {
                 g.split, g.agent_steps, g.with, g.without, g.gap
             );
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn point(split: &str, agent_steps: u64, success: f64, first_trial: f64) -> CurvePoint {
+        CurvePoint {
+            agent_steps,
+            wall_s: agent_steps as f64 / 100.0,
+            split: split.into(),
+            success,
+            first_trial,
+        }
+    }
+
+    #[test]
+    fn a_target_is_met_at_the_first_evaluation_reaching_it_and_the_earliest_best_is_kept() {
+        let curve = [
+            point("train", 100, 0.5, 0.0),
+            point("test", 100, 0.1, 0.0),
+            point("train", 200, 0.9, 0.0),
+            point("train", 300, 0.95, 0.0),
+            point("train", 400, 0.95, 0.0),
+            point("train", 400, 0.7, 0.0),
+        ];
+        let r = split_result(&curve, "train", 0.9).unwrap();
+        assert_eq!(r.first_met.unwrap().agent_steps, 200);
+        assert_eq!(r.best.agent_steps, 300);
+        assert_eq!((r.last.agent_steps, r.last.success), (400, 0.7));
+        let t = split_result(&curve, "test", 0.8).unwrap();
+        assert!(t.first_met.is_none());
+        assert!(split_result(&curve, "other", 0.8).is_none());
+    }
+
+    #[test]
+    fn gaps_pair_evaluations_at_the_same_steps_and_keep_the_final_figure() {
+        let with = [
+            point("train", 100, 0.0, 0.6),
+            point("train", 200, 0.0, 0.8),
+            // the final evaluation, at the last periodic one's steps
+            point("train", 200, 0.0, 0.9),
+        ];
+        let without = [
+            point("train", 100, 0.0, 0.3),
+            point("train", 150, 0.0, 0.1),
+            point("train", 203, 0.0, 0.4),
+        ];
+        let gaps = first_trial_gaps(&with, &without, 5);
+        let got: Vec<(u64, f64)> = gaps.iter().map(|g| (g.agent_steps, g.without)).collect();
+        assert_eq!(got, [(100, 0.3), (200, 0.4)]);
+        assert!((gaps[1].gap - 0.5).abs() < 1e-12);
+        assert!(final_gap_met(&with, &gaps, 0.5 - 1e-9, 5));
+        assert!(!final_gap_met(&with, &gaps, 0.6, 5));
+    }
+
+    #[test]
+    fn an_ablation_cut_short_or_a_split_without_gaps_is_no_pass() {
+        let with = [
+            point("train", 100, 0.0, 0.9),
+            point("train", 200, 0.0, 0.9),
+            point("test", 200, 0.0, 0.9),
+        ];
+        let short = [point("train", 100, 0.0, 0.0)];
+        let gaps = first_trial_gaps(&with, &short, 5);
+        assert_eq!(gaps.len(), 1);
+        assert!(!final_gap_met(&with, &gaps, 0.3, 5), "cut short");
+        let train_only = [point("train", 100, 0.0, 0.0), point("train", 200, 0.0, 0.0)];
+        let gaps = first_trial_gaps(&with, &train_only, 5);
+        assert!(!final_gap_met(&with, &gaps, 0.3, 5), "no test gap");
+        assert!(!final_gap_met(&[], &[], 0.3, 5));
     }
 }

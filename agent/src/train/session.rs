@@ -53,7 +53,8 @@ pub struct TrainOptions {
 
 impl TrainOptions {
     /// A fresh run of `config` on its own local env servers, evaluated, writing nothing
-    /// (set `run_dir`), without a time limit, progress bar or interrupt flag anyone holds.
+    /// (set `run_dir`), without a time limit, progress bar or interrupt flag anyone holds;
+    /// callers override fields with `..TrainOptions::local(config)` (e.g. `servers`).
     pub fn local(config: RunConfig) -> Self {
         Self {
             config,

@@ -19,13 +19,9 @@ pub fn shipped_config(name: &str) -> RunConfig {
     RunConfig::from_file(&repo().join("configs").join(name)).expect("shipped config")
 }
 
-/// A tokio runtime with `threads` workers, as `million` builds one.
+/// The tokio runtime `million` builds: `threads` workers for the gRPC streams.
 pub fn runtime(threads: usize) -> tokio::runtime::Runtime {
-    tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(threads)
-        .enable_all()
-        .build()
-        .unwrap()
+    million::cli::runtime(threads).expect("a tokio runtime")
 }
 
 /// Trains `cfg` into `run_dir` with its own local env servers, for at most `max_seconds`,
