@@ -1,15 +1,13 @@
 //! Tiny runs of `million bench env|train|learner|acting`, so the benchmarks keep working.
 //! They check what each reports is there and sane; a timing is never asserted.
 
+mod common;
+
 use std::ffi::OsStr;
-use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use common::repo;
 use serde_json::Value;
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 /// `million ARGS` run to its end in the repository, whatever its exit status.
 fn run_million<I, S>(args: I) -> Output

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{shipped_config, train_in};
+use common::{metrics_records, shipped_config, train_in};
 
 #[test]
 fn the_actor_waits_for_the_learner_at_the_replay_floor() {
@@ -24,11 +24,9 @@ fn the_actor_waits_for_the_learner_at_the_replay_floor() {
         "replay ratio {} under the floor 16",
         summary.replay_ratio
     );
-    let metrics = std::fs::read_to_string(dir.path().join("metrics.jsonl")).unwrap();
-    let waited = metrics
-        .lines()
-        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+    let waited = metrics_records(dir.path())
+        .iter()
         .filter_map(|r| r.get("train/actor_wait_s")?.as_f64())
         .fold(0.0, f64::max);
-    assert!(waited > 0.0, "the actor never waited:\n{metrics}");
+    assert!(waited > 0.0, "the actor never waited for the learner");
 }

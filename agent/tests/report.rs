@@ -6,7 +6,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{shipped_config, train_in};
+use common::{metrics_records, shipped_config, train_in};
 use million::report::write_report;
 
 /// Width and height of a PNG file, from its IHDR chunk.
@@ -21,17 +21,6 @@ fn png_size(path: &Path) -> (u32, u32) {
     assert_eq!(&bytes[12..16], b"IHDR");
     let be = |b: &[u8]| u32::from_be_bytes(b.try_into().unwrap());
     (be(&bytes[16..20]), be(&bytes[20..24]))
-}
-
-fn records(run: &Path) -> Vec<serde_json::Map<String, serde_json::Value>> {
-    std::fs::read_to_string(run.join("metrics.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| match serde_json::from_str(l).unwrap() {
-            serde_json::Value::Object(m) => m,
-            other => panic!("not an object: {other}"),
-        })
-        .collect()
 }
 
 /// The last record holding `key`, and its value.
@@ -72,7 +61,7 @@ fn report_of_a_short_real_run_matches_its_metrics() {
 
     // The summary row holds the last step and each split's last evaluation, as written in
     // metrics.jsonl.
-    let recs = records(&run);
+    let recs = metrics_records(&run);
     let last_step = recs
         .iter()
         .filter_map(|r| r["step"].as_u64())

@@ -37,6 +37,19 @@ pub fn train_in(cfg: RunConfig, run_dir: &Path, evaluate: bool, max_seconds: f64
         .expect("training runs")
 }
 
+/// Every record of a run's `metrics.jsonl`, in order; each line must be a JSON object.
+pub fn metrics_records(run_dir: &Path) -> Vec<serde_json::Map<String, serde_json::Value>> {
+    let path = run_dir.join("metrics.jsonl");
+    std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .lines()
+        .map(|l| match serde_json::from_str(l) {
+            Ok(serde_json::Value::Object(m)) => m,
+            other => panic!("{}: not a JSON object: {l} ({other:?})", path.display()),
+        })
+        .collect()
+}
+
 pub fn small_model(segment_len: usize, memory_len: usize) -> ModelConfig {
     ModelConfig {
         observation: vec![
