@@ -242,6 +242,11 @@ pub struct VmpoConfig {
     /// learned from. On, the learner runs one more step, the observation after the segment
     /// (stored with it), whose value step T−1 bootstraps from; that step enters no loss.
     pub learn_last_step: bool,
+    /// Do V-MPO's E-step (top half and ψ) apart within each task of the batch [S]. Off (the
+    /// original), the top half is ranked over every task at once, and a task whose
+    /// normalised advantages are smaller than the others' gets little of the policy loss;
+    /// `learner/task_psi_mass/<task id>` in the metrics says how much each task gets.
+    pub per_task_e_step: bool,
 }
 
 /// What the decoupled KL terms compare the learned policy with.
@@ -281,6 +286,7 @@ impl Default for VmpoConfig {
             kl_reference: KlReference::Behaviour,
             lambda: 1.0,
             learn_last_step: false,
+            per_task_e_step: false,
         }
     }
 }

@@ -1,6 +1,8 @@
 //! One V-MPO update: forward the sampled segments from their stored memory, n-step returns,
 //! Pop-Art update, the V-MPO losses of ALGORITHM.md §4, one Adam step over everything.
 
+use std::collections::BTreeMap;
+
 use serde::Serialize;
 use tch::nn::VarStore;
 use tch::{Device, Kind, Tensor};
@@ -103,6 +105,14 @@ pub struct UpdateMetrics {
     pub value_steps: i64,
     pub popart_mean_sigma: f64,
     pub mean_std: f64,
+    /// Task id → Σ ψ over that task's selected steps (tasks with policy steps in the batch).
+    pub task_psi_mass: BTreeMap<i64, f64>,
+    /// Task id → the policy's mean std over that task's policy steps: whether one task's
+    /// exploration collapses while another's stays wide.
+    pub task_mean_std: BTreeMap<i64, f64>,
+    /// Task id → the mean KL of the mean over that task's policy steps: which tasks spend
+    /// the batch-wide trust region (ε_αμ bounds the batch's mean).
+    pub task_kl_mu: BTreeMap<i64, f64>,
 }
 
 /// The loss terms of one batch (steps 1–6 of an update) and what the metrics need.
@@ -121,6 +131,10 @@ struct Losses {
     policy_mask: Tensor,
     value_w: Tensor,
     selected: i64,
+    /// Each step's task id, Σ ψ per task id `[num_tasks]`, and each task's policy steps.
+    task: Tensor,
+    psi_mass: Tensor,
+    task_policy_steps: Tensor,
     popart: PopArtSummary,
     /// The Pop-Art statistics and output layer before the update moved them.
     popart_before: PopArtState,
@@ -414,33 +428,48 @@ impl Learner {
         let value_loss =
             ((&predicted - &target).square() * &value_w).sum(Kind::Float) / &value_count * 0.5;
 
-        // 5. Policy and temperature over the top half of policy_mask by advantage.
+        // 5. Policy and temperature over the top half of policy_mask by advantage (over the
+        //    whole batch, or within each task with `per_task_e_step`).
         let mean = flat_actions(&out.mean);
         let std = flat_actions(&out.std);
         let m = &self.multipliers;
         let eta = m.eta();
-        let (policy_loss, temperature_loss, selected) =
-            match vmpo::top_advantages(&advantages, &policy_mask, cfg.vmpo.top_fraction) {
-                Some(idx) => {
-                    let top = advantages.index_select(0, &idx);
-                    let psi = vmpo::psi_weights(&top, &eta);
-                    let log_prob = gaussian_log_prob(
-                        &mean.index_select(0, &idx),
-                        &std.index_select(0, &idx),
-                        &flat_actions(&b.actions).index_select(0, &idx),
-                    );
-                    (
-                        -(psi * log_prob).sum(Kind::Float),
-                        vmpo::temperature_loss(&eta, &top, cfg.vmpo.eps_eta),
-                        idx.size()[0],
-                    )
-                }
-                None => (
-                    Tensor::zeros([], (Kind::Float, device)),
-                    Tensor::zeros([], (Kind::Float, device)),
-                    0,
-                ),
-            };
+        let (frac, eps_eta) = (cfg.vmpo.top_fraction, cfg.vmpo.eps_eta);
+        let e_step = if cfg.vmpo.per_task_e_step {
+            vmpo::e_step_per_task(&advantages, &policy_mask, &task, frac, &eta, eps_eta)
+        } else {
+            vmpo::e_step(&advantages, &policy_mask, frac, &eta, eps_eta)
+        };
+        let num_tasks = cfg.model.num_tasks as i64;
+        let zero = || Tensor::zeros([], (Kind::Float, device));
+        let (policy_loss, temperature_loss, selected, psi_mass) = match e_step {
+            Some(e) => {
+                let log_prob = gaussian_log_prob(
+                    &mean.index_select(0, &e.idx),
+                    &std.index_select(0, &e.idx),
+                    &flat_actions(&b.actions).index_select(0, &e.idx),
+                );
+                let psi_mass =
+                    vmpo::psi_mass_per_task(&e.psi, &task.index_select(0, &e.idx), num_tasks);
+                (
+                    -(&e.psi * log_prob).sum(Kind::Float),
+                    e.temperature_loss,
+                    e.idx.size()[0],
+                    psi_mass,
+                )
+            }
+            None => (
+                zero(),
+                zero(),
+                0,
+                Tensor::zeros([num_tasks], (Kind::Float, device)),
+            ),
+        };
+        let task_policy_steps = Tensor::zeros([num_tasks], (Kind::Float, device)).scatter_add(
+            0,
+            &task,
+            &policy_mask.to_kind(Kind::Float),
+        );
 
         // 6. Decoupled KL from π_old over policy_mask: the target network on the same inputs,
         //    or the behaviour distribution stored at acting time.
@@ -483,6 +512,9 @@ impl Learner {
             policy_mask,
             value_w,
             selected,
+            task,
+            psi_mass,
+            task_policy_steps,
             popart,
             popart_before,
         })
@@ -492,6 +524,15 @@ impl Learner {
     fn metrics(&self, l: &Losses, loss_value: f64) -> UpdateMetrics {
         let m = &self.multipliers;
         let pw = l.policy_mask.to_kind(Kind::Float);
+        // The mean of a per-step value over each task's policy steps, `[num_tasks]`.
+        let task_mean = |x: &Tensor| {
+            let sums = l.task_policy_steps.zeros_like().scatter_add(
+                0,
+                &l.task,
+                &(x.detach().to_kind(Kind::Float) * &pw),
+            );
+            sums / l.task_policy_steps.clamp_min(1.0)
+        };
         let policy_steps = pw.sum(Kind::Float).double_value(&[]);
         let masked_mean = |x: &Tensor, w: &Tensor, count: f64| {
             (x.detach() * w).sum(Kind::Float).double_value(&[]) / count.max(1.0)
@@ -516,6 +557,29 @@ impl Learner {
             value_steps: value_steps as i64,
             popart_mean_sigma: l.popart.mean_sigma,
             mean_std: masked_mean(&l.std.mean_dim(-1, false, Kind::Float), &pw, policy_steps),
+            task_psi_mass: per_task(&l.psi_mass, &l.task_policy_steps),
+            task_mean_std: per_task(
+                &task_mean(&l.std.mean_dim(-1, false, Kind::Float)),
+                &l.task_policy_steps,
+            ),
+            task_kl_mu: per_task(&task_mean(&l.kl_mu), &l.task_policy_steps),
         }
     }
+}
+
+/// The tasks with policy steps in the batch, each with its value in `per_task` `[num_tasks]`.
+fn per_task(per_task: &Tensor, task_policy_steps: &Tensor) -> BTreeMap<i64, f64> {
+    let values = Vec::<f64>::try_from(per_task.to_kind(Kind::Double).to_device(Device::Cpu))
+        .expect("per-task values");
+    let steps = Vec::<f64>::try_from(
+        task_policy_steps
+            .to_kind(Kind::Double)
+            .to_device(Device::Cpu),
+    )
+    .expect("policy steps");
+    (0i64..)
+        .zip(values.into_iter().zip(steps))
+        .filter(|(_, (_, n))| *n > 0.0)
+        .map(|(id, (m, _))| (id, m))
+        .collect()
 }

@@ -24,6 +24,100 @@ pub fn psi_weights(top_advantages: &Tensor, eta: &Tensor) -> Tensor {
         .detach()
 }
 
+/// The E-step of one update (§4.3–§4.4): the steps the policy loss learns from, their
+/// weights ψ (summing to 1) and the temperature loss L_η.
+pub struct EStep {
+    pub idx: Tensor,
+    pub psi: Tensor,
+    pub temperature_loss: Tensor,
+}
+
+/// The paper's E-step: the top `fraction` of all valid steps by advantage, ψ a softmax over
+/// them. `None` when no step is kept.
+pub fn e_step(
+    advantages: &Tensor,
+    valid: &Tensor,
+    fraction: f64,
+    eta: &Tensor,
+    eps_eta: f64,
+) -> Option<EStep> {
+    let idx = top_advantages(advantages, valid, fraction)?;
+    let top = advantages.index_select(0, &idx);
+    Some(EStep {
+        psi: psi_weights(&top, eta),
+        temperature_loss: temperature_loss(eta, &top, eps_eta),
+        idx,
+    })
+}
+
+/// The E-step done apart for each task [S]: the top `fraction` of each task's valid steps,
+/// ψ a softmax within the task scaled by the task's share k_task / k of the kept steps, and
+/// L_η = Σ_task (k_task / k) L_η,task. With one task it is [`e_step`]. Over a batch of several
+/// tasks, the paper's E-step ranks every task's advantages together, so a task whose
+/// advantages are smaller than the others' (one without successes yet) loses its share of
+/// the top half and of ψ; here every task keeps the share of the batch it was sampled with.
+pub fn e_step_per_task(
+    advantages: &Tensor,
+    valid: &Tensor,
+    task: &Tensor,
+    fraction: f64,
+    eta: &Tensor,
+    eps_eta: f64,
+) -> Option<EStep> {
+    let present: std::collections::BTreeSet<i64> =
+        Vec::<i64>::try_from(task.masked_select(valid).to_device(tch::Device::Cpu))
+            .expect("task ids")
+            .into_iter()
+            .collect();
+    let steps: Vec<EStep> = present
+        .into_iter()
+        .filter_map(|id| {
+            e_step(
+                advantages,
+                &valid.logical_and(&task.eq(id)),
+                fraction,
+                eta,
+                eps_eta,
+            )
+        })
+        .collect();
+    let kept: Vec<f64> = steps.iter().map(|e| e.idx.size()[0] as f64).collect();
+    let total: f64 = kept.iter().sum();
+    if total == 0.0 {
+        return None;
+    }
+    let idx = Tensor::cat(&steps.iter().map(|e| &e.idx).collect::<Vec<_>>(), 0);
+    let psi = Tensor::cat(
+        &steps
+            .iter()
+            .zip(&kept)
+            .map(|(e, k)| &e.psi * (k / total))
+            .collect::<Vec<_>>(),
+        0,
+    );
+    let temperature_loss = steps
+        .iter()
+        .zip(&kept)
+        .map(|(e, k)| &e.temperature_loss * (k / total))
+        .reduce(|a, b| a + b)
+        .expect("at least one task");
+    Some(EStep {
+        idx,
+        psi,
+        temperature_loss,
+    })
+}
+
+/// Σ of ψ over each task's kept steps, `[num_tasks]`: how much of the policy loss each task
+/// gets (with the per-task E-step, its share of the kept steps).
+pub fn psi_mass_per_task(psi: &Tensor, selected_tasks: &Tensor, num_tasks: i64) -> Tensor {
+    Tensor::zeros([num_tasks], (Kind::Float, psi.device())).scatter_add(
+        0,
+        selected_tasks,
+        &psi.to_kind(Kind::Float),
+    )
+}
+
 /// L_η = η ε_η + η [logsumexp(Â / η) − log k]; the gradient reaches η only.
 pub fn temperature_loss(eta: &Tensor, top_advantages: &Tensor, eps_eta: f64) -> Tensor {
     let k = top_advantages.size()[0] as f64;
@@ -78,6 +172,55 @@ mod tests {
         let p0 = 1.0 / (1.0 + (-1.0f64).exp());
         let got = v(&psi);
         assert!((got[0] - p0).abs() < 1e-6 && (got[1] - (1.0 - p0)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn psi_mass_sums_each_tasks_weights() {
+        let psi = Tensor::from_slice(&[0.5f32, 0.3, 0.2]);
+        let tasks = Tensor::from_slice(&[2i64, 0, 2]);
+        let got = v(&psi_mass_per_task(&psi, &tasks, 3));
+        for (g, want) in got.iter().zip([0.3, 0.0, 0.7]) {
+            assert!((g - want).abs() < 1e-6, "{got:?}");
+        }
+    }
+
+    #[test]
+    fn per_task_e_step_keeps_each_tasks_top_half_and_share() {
+        // Task 0 has large advantages, task 1 small ones: the paper's E-step keeps only
+        // task 0's steps; per task, each keeps its own top half (k = 2 each of 4).
+        let adv = Tensor::from_slice(&[9.0f32, 8.0, 7.0, 6.0, 0.3, 0.2, 0.1, 0.0]);
+        let task = Tensor::from_slice(&[0i64, 0, 0, 0, 1, 1, 1, 1]);
+        let valid = Tensor::from_slice(&[true; 8]);
+        let eta = Tensor::from(1.0f32);
+        let whole = e_step(&adv, &valid, 0.5, &eta, 0.1).unwrap();
+        let mass = v(&psi_mass_per_task(
+            &whole.psi,
+            &task.index_select(0, &whole.idx),
+            2,
+        ));
+        assert!((mass[0] - 1.0).abs() < 1e-6 && mass[1].abs() < 1e-6);
+
+        let per = e_step_per_task(&adv, &valid, &task, 0.5, &eta, 0.1).unwrap();
+        let mut idx = Vec::<i64>::try_from(&per.idx).unwrap();
+        idx.sort();
+        assert_eq!(idx, vec![0, 1, 4, 5]);
+        let mass = v(&psi_mass_per_task(
+            &per.psi,
+            &task.index_select(0, &per.idx),
+            2,
+        ));
+        assert!((mass[0] - 0.5).abs() < 1e-6 && (mass[1] - 0.5).abs() < 1e-6);
+        // L_η is the share-weighted mean of each task's own temperature loss.
+        let l0 = temperature_loss(&eta, &Tensor::from_slice(&[9.0f32, 8.0]), 0.1);
+        let l1 = temperature_loss(&eta, &Tensor::from_slice(&[0.3f32, 0.2]), 0.1);
+        let want = (l0.double_value(&[]) + l1.double_value(&[])) / 2.0;
+        assert!((per.temperature_loss.double_value(&[]) - want).abs() < 1e-5);
+        // With one task the per-task E-step is the paper's.
+        let one = Tensor::zeros([8], (Kind::Int64, tch::Device::Cpu));
+        let a = e_step(&adv, &valid, 0.5, &eta, 0.1).unwrap();
+        let b = e_step_per_task(&adv, &valid, &one, 0.5, &eta, 0.1).unwrap();
+        assert_eq!(v(&a.psi), v(&b.psi));
+        assert!(e_step_per_task(&adv, &valid.logical_not(), &task, 0.5, &eta, 0.1).is_none());
     }
 
     #[test]

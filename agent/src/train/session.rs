@@ -329,6 +329,11 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                 if window.trials() > 0 {
                     s.insert("train/success".into(), window.mean());
                 }
+                if window.tasks.len() > 1 {
+                    for (task, rate) in window.per_task() {
+                        s.insert(format!("train/task/{task}"), rate);
+                    }
+                }
                 if !finished.is_empty() {
                     s.insert(
                         "train/episode_return".into(),
@@ -339,8 +344,20 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                     && let Ok(serde_json::Value::Object(map)) = serde_json::to_value(m)
                 {
                     for (k, v) in map {
-                        if let Some(x) = v.as_f64() {
-                            s.insert(format!("learner/{k}"), x);
+                        match v {
+                            // Per-task maps (task_psi_mass, ...): learner/<name>/<task id>
+                            serde_json::Value::Object(inner) => {
+                                for (id, x) in inner {
+                                    if let Some(x) = x.as_f64() {
+                                        s.insert(format!("learner/{k}/{id}"), x);
+                                    }
+                                }
+                            }
+                            v => {
+                                if let Some(x) = v.as_f64() {
+                                    s.insert(format!("learner/{k}"), x);
+                                }
+                            }
                         }
                     }
                 }
