@@ -471,6 +471,11 @@ class Learner:
     def __init__(self, cfg: Config, weights: dict[str, Tensor], device: torch.device) -> None:
         self.cfg = cfg
         mc, v = cfg["model"], cfg["vmpo"]
+        if v.get("per_task_e_step", False):
+            raise NotImplementedError(
+                "the reference implements the paper's batch-wide E-step only "
+                "(vmpo.per_task_e_step = false)"
+            )
         self.model = Model(mc, cfg["popart"]).to(device)
         self.multipliers = Multipliers(v["multiplier_form"]).to(device)
         self.target: Model | None = None
@@ -539,6 +544,7 @@ class Learner:
             out = self.model(b.obs, b.episode_start, b.memory, b.memory_len)
         features = out.value_features.reshape(n, -1)
         task = b.task.reshape(n)
+        num_tasks = self.cfg["model"]["num_tasks"]
 
         # 2. Targets bootstrapped from the current (unnormalised) value.
         with torch.no_grad():
@@ -591,9 +597,16 @@ class Learner:
             )
             policy_loss = -(psi * log_prob).sum()
             temperature_loss = eta * v["eps_eta"] + eta * ((top / eta).logsumexp(0) - math.log(k))
+            psi_mass = torch.zeros(num_tasks, device=b.obs.device).scatter_add(
+                0, task.index_select(0, idx), psi.float()
+            )
         else:
             policy_loss = torch.zeros((), device=b.obs.device)
             temperature_loss = torch.zeros((), device=b.obs.device)
+            psi_mass = torch.zeros(num_tasks, device=b.obs.device)
+        task_policy_steps = torch.zeros(num_tasks, device=b.obs.device).scatter_add(
+            0, task, policy_mask.float()
+        )
 
         # 6. Decoupled KL from the behaviour policy or the target network.
         if self.target is not None:
@@ -630,11 +643,14 @@ class Learner:
             "pw": pw,
             "value_w": value_w,
             "selected": k,
+            "task": task,
+            "psi_mass": psi_mass,
+            "task_policy_steps": task_policy_steps,
             "mean_sigma": mean_sigma,
             "popart_before": popart_before,
         }
 
-    def metrics(self, t: dict[str, Any], loss_value: float) -> dict[str, float]:
+    def metrics(self, t: dict[str, Any], loss_value: float) -> dict[str, Any]:
         """The scalars of `UpdateMetrics`, with the multipliers as they are now."""
         pw, value_w = t["pw"], t["value_w"]
         policy_steps = pw.sum().item()
@@ -642,6 +658,21 @@ class Learner:
 
         def masked_mean(x: Tensor, w: Tensor, count: float) -> float:
             return (x.detach() * w).sum().item() / max(count, 1.0)
+
+        steps = t["task_policy_steps"]
+
+        def task_mean(x: Tensor) -> Tensor:
+            """A per-step value's mean over each task's policy steps, [num_tasks]."""
+            sums = torch.zeros_like(steps).scatter_add(0, t["task"], x.detach().float() * pw)
+            return sums / steps.clamp_min(1.0)
+
+        def per_task(values: Tensor) -> dict[str, float]:
+            """Task id -> value, for the tasks with policy steps in the batch."""
+            return {
+                str(i): v
+                for i, (v, n) in enumerate(zip(values.tolist(), steps.tolist(), strict=True))
+                if n > 0
+            }
 
         mult = self.multipliers
         out = {name: t[name].item() for name in TERMS}
@@ -659,6 +690,10 @@ class Learner:
             "value_steps": value_steps,
             "popart_mean_sigma": t["mean_sigma"],
             "mean_std": masked_mean(t["std"].mean(-1), pw, policy_steps),
+            # Task id -> sum of psi over its kept steps, for tasks with policy steps.
+            "task_psi_mass": per_task(t["psi_mass"]),
+            "task_mean_std": per_task(task_mean(t["std"].mean(-1))),
+            "task_kl_mu": per_task(task_mean(t["kl_mu"])),
         }
         return out
 

@@ -223,22 +223,46 @@ fn compare(stage: &'static str, rust: &Value, pytorch: &Value) -> anyhow::Result
     let rust = rust.as_object().context("Rust metrics are an object")?;
     let mut out = Vec::with_capacity(rust.len());
     for (term, r) in rust {
-        let r = r.as_f64().context("Rust metric is a number")?;
         let p = pytorch
             .get(term)
-            .and_then(Value::as_f64)
             .with_context(|| format!("the reference reports no `{term}` ({stage})"))?;
-        let abs_diff = (r - p).abs();
-        out.push(Compared {
-            stage,
-            term: term.clone(),
-            rust: r,
-            pytorch: p,
-            abs_diff,
-            ok: abs_diff <= TOLERANCE || abs_diff <= TOLERANCE * r.abs(),
-        });
+        // A map of scalars (task_psi_mass: task id → Σ ψ): the same keys on both sides, each
+        // compared as its own term.
+        if let Some(inner) = r.as_object() {
+            let p = p
+                .as_object()
+                .with_context(|| format!("the reference's `{term}` is not a map ({stage})"))?;
+            let (mut rk, mut pk): (Vec<_>, Vec<_>) = (inner.keys().collect(), p.keys().collect());
+            rk.sort();
+            pk.sort();
+            anyhow::ensure!(
+                rk == pk,
+                "`{term}` ({stage}): Rust keys {rk:?}, reference {pk:?}"
+            );
+            for (key, r) in inner {
+                out.push(compared(stage, format!("{term}/{key}"), r, &p[key])?);
+            }
+            continue;
+        }
+        out.push(compared(stage, term.clone(), r, p)?);
     }
     Ok(out)
+}
+
+fn compared(stage: &'static str, term: String, r: &Value, p: &Value) -> anyhow::Result<Compared> {
+    let r = r.as_f64().context("Rust metric is a number")?;
+    let p = p
+        .as_f64()
+        .with_context(|| format!("the reference's `{term}` is not a number ({stage})"))?;
+    let abs_diff = (r - p).abs();
+    Ok(Compared {
+        stage,
+        term,
+        rust: r,
+        pytorch: p,
+        abs_diff,
+        ok: abs_diff <= TOLERANCE || abs_diff <= TOLERANCE * r.abs(),
+    })
 }
 
 /// Updates/s of both sides at one thread count.
