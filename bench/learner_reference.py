@@ -472,7 +472,8 @@ class Learner:
         self.cfg = cfg
         mc, v = cfg["model"], cfg["vmpo"]
         if v.get("per_task_e_step", False):
-            raise NotImplementedError(
+            # A config this reference does not model is refused, as a mismatch of weights is.
+            raise ValueError(
                 "the reference implements the paper's batch-wide E-step only "
                 "(vmpo.per_task_e_step = false)"
             )
