@@ -143,6 +143,37 @@ def test_full_length_trials_keep_a_success_that_was_left_behind() -> None:
     assert records[-1]["info"]["trial_successes"] == 2
 
 
+@pytest.mark.parametrize("action_repeat", [1, 2])
+def test_steps_to_success_says_how_soon_a_trial_first_succeeded(action_repeat: int) -> None:
+    """A full-length trial reports at its end the env step at which its success test first
+    held (how soon, where `success` says only whether); a failed trial reports -1."""
+    env = make(trials=3, trial_len=30, end_on_success=False, action_repeat=action_repeat)
+    first_hits: list[int] = []
+
+    def policy(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
+        # Trial 0 stands still (fails); the later trials walk to the goal.
+        if info["phase"] != "trial" or info["trial"] == 0:
+            return ZERO
+        distance = np.linalg.norm(obs["state"][:2] - info["goal"][:2])
+        if distance < SUCCESS_DISTANCE and len(first_hits) < info["trial"]:
+            first_hits.append(info["steps_in_trial"])
+        return walk_to_goal(obs, info)
+
+    records = run_episode(env, policy, seed=1)
+    ends = [r["info"] for r in records if r["info"]["trial_end"]]
+    assert [e["success"] for e in ends] == [False, True, True]
+    assert ends[0]["steps_to_success"] == -1
+    hits = [e["steps_to_success"] for e in ends[1:]]
+    assert all(1 <= h < 30 for h in hits)
+    # The agent saw itself within the radius at the observation after the step that got it
+    # there; with action repeat that step may have been the first or a later repeat.
+    for hit, seen in zip(hits, first_hits, strict=True):
+        assert seen - action_repeat < hit <= seen
+    # Within a trial the field runs: -1 until the success, then the step it happened at.
+    running = [r["info"]["steps_to_success"] for r in records if r["info"]["trial"] == 1]
+    assert running[0] == -1 and hits[0] in running
+
+
 def test_mixed_outcomes_follow_the_protocol() -> None:
     # Fail the first trial, then succeed: instruction, trial, instruction, trial, trial.
     env = make(trials=3)

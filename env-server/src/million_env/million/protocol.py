@@ -91,6 +91,13 @@ INFO_FIELDS: tuple[InfoField, ...] = (
     ),
     InfoField("token", "str", (), "the word in the observation ('' in trials)"),
     InfoField("steps_in_trial", "int64", (), "env steps taken in the current trial"),
+    InfoField(
+        "steps_to_success",
+        "int64",
+        (),
+        "env steps the trial took until its success test first held, -1 while it has not; at "
+        "the step that ends a trial, that trial's (how soon, where `success` says only whether)",
+    ),
     InfoField("episode_step", "int64", (), "agent steps taken in this episode"),
     InfoField(
         "goal",
@@ -213,6 +220,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._trial_successes = 0
         self._steps_in_trial = 0
         self._trial_succeeded = False
+        self._steps_to_success = -1
         self._episode_step = 0
         self._prev_reward = 0.0
         self._done = False
@@ -241,7 +249,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         # The MDP is reset before the first instruction so goal_pos is the real goal.
         self._begin_trial_mdp()
         self._begin_instruction_or_trial()
-        return self._observation(), self._info(success=False, trial_end=False)
+        return self._observation(), self._info(success=False, trial_end=False, steps_to_success=-1)
 
     def step(
         self, action: npt.NDArray[np.float32]
@@ -251,6 +259,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._episode_step += 1
         success = trial_end = terminated = False
         reward = 0.0
+        steps_to_success = -1
         if self._phase == PHASE_INSTRUCTION:
             # The action is ignored and the reward is 0 while words are fed.
             self._word_index += 1
@@ -260,6 +269,8 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         else:
             reward, succeeded_now = self._act(self._checked_action(action))
             self._trial_succeeded |= succeeded_now
+            # Read now: a trial that ends at this step gives way to the next one below.
+            steps_to_success = self._steps_to_success
             ended_by_success = succeeded_now and self._end_on_success
             if ended_by_success or self._steps_in_trial >= self._trial_len:
                 trial_end = True
@@ -280,7 +291,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             reward,
             terminated,
             False,
-            self._info(success=success, trial_end=trial_end),
+            self._info(success=success, trial_end=trial_end, steps_to_success=steps_to_success),
         )
 
     def close(self) -> None:
@@ -316,6 +327,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._state = self._task.reset()
         self._steps_in_trial = 0
         self._trial_succeeded = False
+        self._steps_to_success = -1
         self._phase = PHASE_TRIAL
 
     def _begin_instruction_or_trial(self) -> None:
@@ -367,6 +379,8 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             self._steps_in_trial += 1
             reward += step_reward
             succeeded |= success
+            if success and self._steps_to_success < 0:
+                self._steps_to_success = self._steps_in_trial
             if success and self._end_on_success:
                 # The trial ends at the env step that succeeds.
                 break
@@ -415,7 +429,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             "prev_reward": np.array([prev_reward], dtype=np.float32),
         }
 
-    def _info(self, *, success: bool, trial_end: bool) -> dict[str, Any]:
+    def _info(self, *, success: bool, trial_end: bool, steps_to_success: int) -> dict[str, Any]:
         assert self._task is not None
         in_instruction = self._phase == PHASE_INSTRUCTION
         token = ""
@@ -433,6 +447,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             "instruction": self._instruction.text if self._instruction is not None else "",
             "token": token,
             "steps_in_trial": self._steps_in_trial,
+            "steps_to_success": steps_to_success,
             "episode_step": self._episode_step,
             "goal": self._task.goal(),
         }
