@@ -118,6 +118,9 @@ pub struct EvalConfig {
     pub test_kwargs: toml::Table,
     /// Episodes per split (one per env, run in one batch).
     pub episodes: usize,
+    /// Env-step budgets k: each evaluation also reports the share of first trials that
+    /// succeeded within k env steps (`eval/<split>/first_trial_success_within/<k>`).
+    pub first_trial_within: Vec<u64>,
     pub seed: u64,
 }
 
@@ -129,6 +132,7 @@ impl Default for EvalConfig {
             test_id: "million/ML10-test".into(),
             test_kwargs: toml::Table::new(),
             episodes: 50,
+            first_trial_within: vec![50, 100],
             seed: 1_000_000,
         }
     }
@@ -209,6 +213,9 @@ impl RunConfig {
         }
         if self.eval.episodes == 0 {
             return bad("eval.episodes must be > 0".into());
+        }
+        if self.eval.first_trial_within.contains(&0) {
+            return bad("eval.first_trial_within: every budget must be > 0 env steps".into());
         }
         if self.train.log_interval == 0 {
             return bad("train.log_interval must be > 0".into());

@@ -62,7 +62,7 @@ async fn a_server_lost_mid_evaluation_voids_the_scores() {
 
     // Uninterrupted, the tally runs to its end and scores every row.
     let reset = pool.reset_to_first_episodes(0).await.unwrap();
-    let mut tally = EvalTally::new(&tasks(&reset.info), "none");
+    let mut tally = EvalTally::new(&tasks(&reset.info), "none", &[5, 1_000]);
     let mut steps = 0;
     while !tally.finished() {
         let step = pool.step(0, &actions.sample(ENVS)).await.unwrap();
@@ -82,11 +82,17 @@ async fn a_server_lost_mid_evaluation_voids_the_scores() {
     // Random actions fail most trials, so later trials follow failures.
     assert!(report.after_failure_trials > 0, "{report:?}");
     assert!((0.0..=1.0).contains(&report.after_failure), "{report:?}");
+    // First trials that succeeded within k env steps: the server reports how soon, and a
+    // budget longer than any trial counts every success.
+    let within = &report.first_trial_within;
+    assert_eq!(within.keys().copied().collect::<Vec<_>>(), [5, 1_000]);
+    assert!(within[&5] <= within[&1_000], "{report:?}");
+    assert_eq!(within[&1_000], report.first_trial, "{report:?}");
 
     // The same episodes again, with the server killed and restarted a few steps in:
     // the cut step voids the tally instead of leaving it the trials ended so far.
     let reset = pool.reset_to_first_episodes(0).await.unwrap();
-    let mut tally = EvalTally::new(&tasks(&reset.info), "none");
+    let mut tally = EvalTally::new(&tasks(&reset.info), "none", &[5, 1_000]);
     for _ in 0..3 {
         let step = pool.step(0, &actions.sample(ENVS)).await.unwrap();
         assert_eq!(tally.observe(&step), Scoring::Going);

@@ -120,6 +120,7 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
                 &servers,
                 split,
                 cfg.eval.episodes,
+                &cfg.eval.first_trial_within,
                 cfg.eval.seed,
                 client_config(&cfg, &env_access),
                 cfg.model.action_dim,
@@ -147,6 +148,12 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
             }
             println!("  {:<28} {:>6.3}", "mean", r.mean);
             println!("  {:<28} {:>6.3}", "first trials", r.first_trial);
+            for (k, v) in &r.first_trial_within {
+                println!(
+                    "  {:<28} {v:>6.3}",
+                    format!("first trials within {k} steps")
+                );
+            }
             println!(
                 "  {:<28} {:>6.3}",
                 "trials after a success", r.after_success

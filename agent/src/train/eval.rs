@@ -34,6 +34,11 @@ pub struct EvalReport {
     pub mean: f64,
     /// Success rate of first trials only (instruction following without trial and error).
     pub first_trial: f64,
+    /// k → share of first trials that succeeded within k env steps, for each k of
+    /// `eval.first_trial_within`; empty when the env does not report `steps_to_success`.
+    /// How soon, where `first_trial` says only whether: an agent that reads the goal goes
+    /// straight to it, one that must search for it gets there later if at all.
+    pub first_trial_within: BTreeMap<u64, f64>,
     /// Success rate of the later trials that follow a successful one in their episode
     /// (NaN if none): the protocol gives no new instruction then, so this is the goal
     /// recalled from memory; below `first_trial` means the memory loses it.
@@ -55,6 +60,7 @@ pub struct Evaluator {
     pool: EnvPool,
     bounds: ActionBounds,
     episodes: usize,
+    first_trial_within: Vec<u64>,
 }
 
 impl Evaluator {
@@ -62,6 +68,7 @@ impl Evaluator {
         servers: &[String],
         split: EvalSplit,
         episodes: usize,
+        first_trial_within: &[u64],
         seed: u64,
         client: ClientConfig,
         action_dim: usize,
@@ -80,6 +87,7 @@ impl Evaluator {
             pool,
             bounds,
             episodes,
+            first_trial_within: first_trial_within.to_vec(),
         })
     }
 
@@ -122,7 +130,7 @@ impl Evaluator {
         let tasks: Vec<String> = (0..self.episodes)
             .map(|row| text(&reset.info, "task_name", row).unwrap_or_else(|| env_id.clone()))
             .collect();
-        let mut tally = EvalTally::new(&tasks, &env_id);
+        let mut tally = EvalTally::new(&tasks, &env_id, &self.first_trial_within);
         let mut actor = GroupActor::new(model, &self.pool, 0);
         actor.observe_reset(model, &reset.obs)?;
         while !tally.finished() {
@@ -166,6 +174,11 @@ pub struct EvalTally {
     previous: Vec<Option<bool>>,
     table: SuccessTable,
     first: SuccessTable,
+    /// Env steps to the first success of each scored first trial (None: it failed).
+    first_steps: Vec<Option<u64>>,
+    /// Whether the env reports `steps_to_success` (else `first_steps` says nothing).
+    steps_reported: bool,
+    within: Vec<u64>,
     after_success: SuccessTable,
     after_failure: SuccessTable,
     tracker: TrialTracker,
@@ -174,8 +187,9 @@ pub struct EvalTally {
 
 impl EvalTally {
     /// `tasks`: each row's task at the reset; `default_task` names trials of envs
-    /// that report no task.
-    pub fn new(tasks: &[String], default_task: &str) -> Self {
+    /// that report no task; `first_trial_within`: the env-step budgets k of
+    /// `EvalReport::first_trial_within`.
+    pub fn new(tasks: &[String], default_task: &str, first_trial_within: &[u64]) -> Self {
         let (scored, per_task_episodes) = equal_share_per_task(tasks);
         Self {
             done: scored.iter().map(|s| !s).collect(),
@@ -184,6 +198,9 @@ impl EvalTally {
             previous: vec![None; tasks.len()],
             table: SuccessTable::default(),
             first: SuccessTable::default(),
+            first_steps: vec![],
+            steps_reported: false,
+            within: first_trial_within.to_vec(),
             after_success: SuccessTable::default(),
             after_failure: SuccessTable::default(),
             tracker: TrialTracker::new(tasks.len(), default_task),
@@ -206,13 +223,17 @@ impl EvalTally {
         {
             return Scoring::Void;
         }
+        self.steps_reported |= step.info.get("steps_to_success").is_some();
         for t in self.tracker.outcomes(0, step) {
             if self.done[t.row] {
                 continue;
             }
             self.table.record(&t.task, t.success);
             match self.previous[t.row] {
-                None => self.first.record("all", t.success),
+                None => {
+                    self.first.record("all", t.success);
+                    self.first_steps.push(t.steps_to_success);
+                }
                 Some(true) => self.after_success.record("all", t.success),
                 Some(false) => self.after_failure.record("all", t.success),
             }
@@ -243,12 +264,31 @@ impl EvalTally {
                 .collect(),
             mean: self.table.mean(),
             first_trial: self.first.mean(),
+            first_trial_within: self.first_trial_within(),
             after_success: self.after_success.mean(),
             after_failure: self.after_failure.mean(),
             after_success_trials: self.after_success.trials(),
             after_failure_trials: self.after_failure.trials(),
             mean_return: self.returns.iter().sum::<f64>() / self.scored.max(1) as f64,
         }
+    }
+
+    fn first_trial_within(&self) -> BTreeMap<u64, f64> {
+        if !self.steps_reported || self.first_steps.is_empty() {
+            return BTreeMap::new();
+        }
+        let n = self.first_steps.len() as f64;
+        self.within
+            .iter()
+            .map(|&k| {
+                let hits = self
+                    .first_steps
+                    .iter()
+                    .filter(|s| s.is_some_and(|s| s <= k))
+                    .count();
+                (k, hits as f64 / n)
+            })
+            .collect()
     }
 }
 

@@ -8,12 +8,15 @@ use std::collections::BTreeMap;
 use million_env::{InfoBatch, StepBatch};
 use serde::Serialize;
 
-/// One finished trial: the task it belonged to and whether it succeeded.
+/// One finished trial: the task it belonged to, whether it succeeded and, where the env
+/// says (MILLION envs' `steps_to_success`), after how many env steps it first did.
 #[derive(Debug, Clone, PartialEq)]
 pub struct TrialOutcome {
     pub row: usize,
     pub task: String,
     pub success: bool,
+    /// None for a failed trial, or when the env does not report it.
+    pub steps_to_success: Option<u64>,
 }
 
 fn flag(info: &InfoBatch, name: &str, row: usize) -> bool {
@@ -22,6 +25,20 @@ fn flag(info: &InfoBatch, name: &str, row: usize) -> bool {
         .and_then(|f| f.value.slice_rows(row..row + 1).ok())
         .and_then(|t| t.to_bool_vec().ok())
         .is_some_and(|v| v.first().copied().unwrap_or(false))
+}
+
+/// A non-negative integer info field of one row; None when absent or negative (MILLION's
+/// `steps_to_success` is -1 for a trial that has not succeeded).
+fn count(info: &InfoBatch, name: &str, row: usize) -> Option<u64> {
+    let f = info.get(name).filter(|f| f.present[row])?;
+    let v = *f
+        .value
+        .slice_rows(row..row + 1)
+        .ok()?
+        .to_i64_vec()
+        .ok()?
+        .first()?;
+    u64::try_from(v).ok()
 }
 
 /// A text info field of one row (e.g. `task_name`), when the row has it.
@@ -60,10 +77,12 @@ impl TrialTracker {
             let task = || text(info, "task_name", row).unwrap_or_else(|| self.default_task.clone());
             if info.get("trial_end").is_some() {
                 if flag(info, "trial_end", row) {
+                    let success = flag(info, "success", row);
                     out.push(TrialOutcome {
                         row,
                         task: task(),
-                        success: flag(info, "success", row),
+                        success,
+                        steps_to_success: count(info, "steps_to_success", row).filter(|_| success),
                     });
                 }
                 continue;
@@ -76,6 +95,7 @@ impl TrialTracker {
                     row,
                     task: task(),
                     success,
+                    steps_to_success: None,
                 });
             }
         }

@@ -2,7 +2,7 @@
 //! on this thread (gRPC streams on tokio workers), the learner on its own thread, periodic
 //! logs, evaluation and checkpoints, and a summary at the end.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
@@ -78,6 +78,8 @@ pub struct CurvePoint {
     pub split: String,
     pub success: f64,
     pub first_trial: f64,
+    /// env steps k → first trials that succeeded within k (`EvalReport::first_trial_within`).
+    pub first_trial_within: BTreeMap<u64, f64>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -192,6 +194,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                     &servers,
                     split,
                     cfg.eval.episodes,
+                    &cfg.eval.first_trial_within,
                     cfg.eval.seed,
                     client.clone(),
                     cfg.model.action_dim,
@@ -391,6 +394,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                         split: r.split.clone(),
                         success: r.mean,
                         first_trial: r.first_trial,
+                        first_trial_within: r.first_trial_within.clone(),
                     });
                     bar.println(format!(
                         "eval {} at {agent_steps} steps: success {:.3} (first trials {:.3})",
@@ -481,6 +485,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                 split: r.split.clone(),
                 success: r.mean,
                 first_trial: r.first_trial,
+                first_trial_within: r.first_trial_within.clone(),
             });
             final_eval.push(r);
             ev.close().await?;
@@ -512,6 +517,12 @@ fn record_eval(s: &mut Scalars, r: &EvalReport) {
         format!("eval/{}/first_trial_success", r.split),
         r.first_trial,
     );
+    for (k, v) in &r.first_trial_within {
+        s.insert(
+            format!("eval/{}/first_trial_success_within/{k}", r.split),
+            *v,
+        );
+    }
     s.insert(
         format!("eval/{}/after_success_trial_success", r.split),
         r.after_success,
