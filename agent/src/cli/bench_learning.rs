@@ -47,6 +47,11 @@ pub struct LearningBench {
     /// How far the config's first-trial success must lie above the ablation's.
     #[arg(long, default_value_t = 0.3)]
     pub first_trial_gap: f64,
+    /// The gap is also measured on first trials that succeeded within this many env steps
+    /// (one of the configs' `eval.first_trial_within`; 100 = half a Meta-World trial, where
+    /// Meta-World's scripted reach policy, told the goal, succeeds on every goal).
+    #[arg(long, default_value_t = 100)]
+    pub within_env_steps: u64,
     /// Directory of the two runs (DIR/run, DIR/ablation); it must not exist yet. Default
     /// runs/bench-learning-<config name>[-seedN].
     #[arg(long)]
@@ -96,6 +101,12 @@ pub struct AblationResult {
     /// Whether, on every split the config evaluated, both runs were evaluated at the config's
     /// final agent steps and the gap there reaches the target.
     pub final_gap_met: bool,
+    /// The same for first trials that succeeded within `within_env_steps` env steps: how
+    /// soon, where `gaps` compares only whether (an agent without the words can search the
+    /// goal out in a whole trial, but not as soon as one that reads it).
+    pub within_env_steps: u64,
+    pub gaps_within: Vec<GapPoint>,
+    pub final_gap_within_met: bool,
 }
 
 #[derive(Debug, Serialize)]
@@ -136,6 +147,17 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
         .as_deref()
         .map(|path| load(path, b.seed).map(|cfg| (path, cfg)))
         .transpose()?;
+    let configs = std::iter::once((b.config.as_path(), &cfg))
+        .chain(ablation_cfg.as_ref().map(|(path, cfg)| (*path, cfg)));
+    for (path, c) in configs {
+        anyhow::ensure!(
+            c.eval.first_trial_within.contains(&b.within_env_steps),
+            "--within-env-steps {} is not one of {}'s eval.first_trial_within {:?}",
+            b.within_env_steps,
+            path.display(),
+            c.eval.first_trial_within
+        );
+    }
     // The budget is wall-clock: the config's step count and early stop do not end it sooner.
     cfg.train.total_agent_steps = u64::MAX;
     cfg.train.stop_at_success = 2.0;
@@ -160,16 +182,22 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
                     main.agent_steps
                 );
             }
-            let within = eval_interval / SAME_STEPS_FRACTION;
-            let gaps = first_trial_gaps(&main.curve, &blind.curve, within);
-            let final_gap_met = final_gap_met(&main.curve, &gaps, b.first_trial_gap, within);
+            let tolerance = eval_interval / SAME_STEPS_FRACTION;
+            let gaps = first_trial_gaps(&main.curve, &blind.curve, tolerance, FirstTrial::Success);
+            let within = FirstTrial::SuccessWithin(b.within_env_steps);
+            let gaps_within = first_trial_gaps(&main.curve, &blind.curve, tolerance, within);
+            let met =
+                |gaps: &[GapPoint]| final_gap_met(&main.curve, gaps, b.first_trial_gap, tolerance);
             Some(AblationResult {
                 config: path.to_owned(),
                 agent_steps: blind.agent_steps,
                 minutes: blind.wall_s / 60.0,
                 target_gap: b.first_trial_gap,
+                final_gap_met: met(&gaps),
                 gaps,
-                final_gap_met,
+                within_env_steps: b.within_env_steps,
+                final_gap_within_met: met(&gaps_within),
+                gaps_within,
             })
         }
     };
@@ -243,30 +271,61 @@ pub fn split_result(curve: &[CurvePoint], split: &str, target: f64) -> Option<Sp
     })
 }
 
+/// What a first-trial gap compares.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FirstTrial {
+    /// Whether first trials succeeded at all, within their whole length.
+    Success,
+    /// Whether they succeeded within this many env steps (`EvalReport::first_trial_within`).
+    SuccessWithin(u64),
+}
+
+impl FirstTrial {
+    /// The point's figure; None when the evaluation did not measure it.
+    fn of(self, p: &CurvePoint) -> Option<f64> {
+        match self {
+            Self::Success => Some(p.first_trial),
+            Self::SuccessWithin(k) => p.first_trial_within.get(&k).copied(),
+        }
+    }
+}
+
 /// First-trial gaps at the evaluations both runs made at the same agent steps (within
-/// `within` steps: runs with other env counts step in other increments). A run's final
+/// `tolerance` steps: runs with other env counts step in other increments). A run's final
 /// evaluation may repeat its last periodic one's step; the later (final) figure is kept.
-pub fn first_trial_gaps(with: &[CurvePoint], without: &[CurvePoint], within: u64) -> Vec<GapPoint> {
+pub fn first_trial_gaps(
+    with: &[CurvePoint],
+    without: &[CurvePoint],
+    tolerance: u64,
+    measure: FirstTrial,
+) -> Vec<GapPoint> {
     let mut gaps = vec![];
     for split in ["train", "test"] {
-        let theirs: Vec<Milestone> = milestones(without, split).collect();
+        let of_split = |curve: &[CurvePoint]| -> Vec<(u64, f64)> {
+            curve
+                .iter()
+                .filter(|p| p.split == split)
+                .filter_map(|p| Some((p.agent_steps, measure.of(p)?)))
+                .collect()
+        };
+        let theirs = of_split(without);
         let mut split_gaps: Vec<GapPoint> = vec![];
-        for m in milestones(with, split) {
-            let Some(o) = theirs
+        for (steps, mine) in of_split(with) {
+            let Some(&(_, other)) = theirs
                 .iter()
                 .rev()
-                .filter(|o| o.agent_steps.abs_diff(m.agent_steps) <= within)
-                .min_by_key(|o| o.agent_steps.abs_diff(m.agent_steps))
+                .filter(|o| o.0.abs_diff(steps) <= tolerance)
+                .min_by_key(|o| o.0.abs_diff(steps))
             else {
                 continue;
             };
-            split_gaps.retain(|g| g.agent_steps != m.agent_steps);
+            split_gaps.retain(|g| g.agent_steps != steps);
             split_gaps.push(GapPoint {
                 split: split.to_owned(),
-                agent_steps: m.agent_steps,
-                with: m.first_trial,
-                without: o.first_trial,
-                gap: m.first_trial - o.first_trial,
+                agent_steps: steps,
+                with: mine,
+                without: other,
+                gap: mine - other,
             });
         }
         gaps.extend(split_gaps);
@@ -276,7 +335,7 @@ pub fn first_trial_gaps(with: &[CurvePoint], without: &[CurvePoint], within: u64
 
 /// True when every split of `with` has a gap at its last evaluation's agent steps and that
 /// gap reaches `target`: an ablation cut short, or a split it did not evaluate, is no pass.
-pub fn final_gap_met(with: &[CurvePoint], gaps: &[GapPoint], target: f64, within: u64) -> bool {
+pub fn final_gap_met(with: &[CurvePoint], gaps: &[GapPoint], target: f64, tolerance: u64) -> bool {
     let mut splits: Vec<&str> = with.iter().map(|p| p.split.as_str()).collect();
     splits.sort_unstable();
     splits.dedup();
@@ -289,7 +348,7 @@ pub fn final_gap_met(with: &[CurvePoint], gaps: &[GapPoint], target: f64, within
                 .rev()
                 .find(|g| g.split == *split)
                 .is_some_and(|g| {
-                    g.agent_steps.abs_diff(last.agent_steps) <= within && g.gap >= target
+                    g.agent_steps.abs_diff(last.agent_steps) <= tolerance && g.gap >= target
                 })
         })
 }
@@ -338,6 +397,22 @@ fn print_report(r: &LearningReport) {
                 g.split, g.agent_steps, g.with, g.without, g.gap
             );
         }
+        println!(
+            "  first trials successful within {} env steps, gap ≥ {:.2} at the end: {}",
+            a.within_env_steps,
+            a.target_gap,
+            if a.final_gap_within_met {
+                "MET"
+            } else {
+                "NOT MET"
+            }
+        );
+        for g in &a.gaps_within {
+            println!(
+                "    {:<5} {:>9} steps: {:.3} with, {:.3} without, gap {:+.3}",
+                g.split, g.agent_steps, g.with, g.without, g.gap
+            );
+        }
     }
 }
 
@@ -352,6 +427,8 @@ mod tests {
             split: split.into(),
             success,
             first_trial,
+            // Half the first trials that succeeded did so within 100 env steps.
+            first_trial_within: [(100, first_trial / 2.0)].into(),
         }
     }
 
@@ -387,12 +464,21 @@ mod tests {
             point("train", 150, 0.0, 0.1),
             point("train", 203, 0.0, 0.4),
         ];
-        let gaps = first_trial_gaps(&with, &without, 5);
+        let gaps = first_trial_gaps(&with, &without, 5, FirstTrial::Success);
         let got: Vec<(u64, f64)> = gaps.iter().map(|g| (g.agent_steps, g.without)).collect();
         assert_eq!(got, [(100, 0.3), (200, 0.4)]);
         assert!((gaps[1].gap - 0.5).abs() < 1e-12);
         assert!(final_gap_met(&with, &gaps, 0.5 - 1e-9, 5));
         assert!(!final_gap_met(&with, &gaps, 0.6, 5));
+        // Within 100 env steps: the same pairs, the figures of that measure.
+        let soon = first_trial_gaps(&with, &without, 5, FirstTrial::SuccessWithin(100));
+        let got: Vec<(u64, f64)> = soon.iter().map(|g| (g.agent_steps, g.without)).collect();
+        assert_eq!(got, [(100, 0.15), (200, 0.2)]);
+        assert!((soon[1].gap - 0.25).abs() < 1e-12);
+        // A budget the evaluations did not measure gives no gap, so no pass.
+        let unmeasured = first_trial_gaps(&with, &without, 5, FirstTrial::SuccessWithin(50));
+        assert!(unmeasured.is_empty());
+        assert!(!final_gap_met(&with, &unmeasured, 0.0, 5));
     }
 
     #[test]
@@ -403,11 +489,11 @@ mod tests {
             point("test", 200, 0.0, 0.9),
         ];
         let short = [point("train", 100, 0.0, 0.0)];
-        let gaps = first_trial_gaps(&with, &short, 5);
+        let gaps = first_trial_gaps(&with, &short, 5, FirstTrial::Success);
         assert_eq!(gaps.len(), 1);
         assert!(!final_gap_met(&with, &gaps, 0.3, 5), "cut short");
         let train_only = [point("train", 100, 0.0, 0.0), point("train", 200, 0.0, 0.0)];
-        let gaps = first_trial_gaps(&with, &train_only, 5);
+        let gaps = first_trial_gaps(&with, &train_only, 5, FirstTrial::Success);
         assert!(!final_gap_met(&with, &gaps, 0.3, 5), "no test gap");
         assert!(!final_gap_met(&[], &[], 0.3, 5));
     }
