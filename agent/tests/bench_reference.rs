@@ -4,9 +4,12 @@
 //! returns, clamp-form multipliers, KL from the behaviour policy) and once with every other
 //! form the config can select. One timed update per side; timings are never asserted.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use common::repo;
 use serde_json::Value;
 
 const TERMS: [&str; 6] = [
@@ -17,10 +20,6 @@ const TERMS: [&str; 6] = [
     "alpha_sigma_loss",
     "value_loss",
 ];
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 /// Quickstart with the state field normalised, λ-returns, debiased Pop-Art over 3 tasks, log-form multipliers with their
 /// own step size, a target network synced after every update, and the last step learned from.
