@@ -314,7 +314,64 @@ pub fn equal_share_per_task(tasks: &[String]) -> (Vec<bool>, usize) {
 
 #[cfg(test)]
 mod tests {
+    use million_env::{Fields, InfoBatch, InfoField, Tensor};
+
     use super::*;
+
+    /// One step reply in which every row ends its first trial, with its success and its
+    /// `steps_to_success` (or without that field).
+    fn first_trials_end(success: &[bool], steps: Option<&[i64]>) -> StepBatch {
+        let n = success.len();
+        let field = |name: &str, value: Tensor| InfoField {
+            name: name.into(),
+            value,
+            present: vec![true; n],
+        };
+        let mut info = vec![
+            field(
+                "trial_end",
+                Tensor::from_bool(vec![n], &vec![true; n]).unwrap(),
+            ),
+            field("success", Tensor::from_bool(vec![n], success).unwrap()),
+        ];
+        if let Some(steps) = steps {
+            info.push(field(
+                "steps_to_success",
+                Tensor::from_i64(vec![n], steps).unwrap(),
+            ));
+        }
+        StepBatch {
+            group: 0,
+            env_offset: 0,
+            obs: Fields::default(),
+            reward: vec![0.0; n],
+            terminated: vec![false; n],
+            truncated: vec![false; n],
+            cut: vec![false; n],
+            info: InfoBatch(info),
+            final_obs: None,
+            final_info: None,
+        }
+    }
+
+    #[test]
+    fn first_trials_within_a_budget_count_the_successes_that_came_that_soon() {
+        let tasks: Vec<String> = vec!["reach".into(); 4];
+        let mut tally = EvalTally::new(&tasks, "none", &[50, 100, 200]);
+        let step = first_trials_end(&[true, true, false, true], Some(&[42, 120, -1, 50]));
+        assert_eq!(tally.observe(&step), Scoring::Going);
+        let r = tally.report("train", "million/ML1-train".into());
+        assert_eq!(r.first_trial, 0.75);
+        let within: Vec<(u64, f64)> = r.first_trial_within.into_iter().collect();
+        assert_eq!(within, [(50, 0.5), (100, 0.5), (200, 0.75)]);
+
+        // An env that does not say how soon gets no such figures, not zeros.
+        let mut tally = EvalTally::new(&tasks, "none", &[50]);
+        tally.observe(&first_trials_end(&[true, true, false, true], None));
+        let r = tally.report("train", "other".into());
+        assert_eq!(r.first_trial, 0.75);
+        assert!(r.first_trial_within.is_empty());
+    }
 
     #[test]
     fn every_task_gets_the_smallest_tasks_count() {

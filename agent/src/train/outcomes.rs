@@ -19,10 +19,14 @@ pub struct TrialOutcome {
     pub steps_to_success: Option<u64>,
 }
 
+/// One row of an info field as a one-row tensor, when the row has it.
+fn row_value(info: &InfoBatch, name: &str, row: usize) -> Option<million_env::Tensor> {
+    let f = info.get(name).filter(|f| f.present[row])?;
+    f.value.slice_rows(row..row + 1).ok()
+}
+
 fn flag(info: &InfoBatch, name: &str, row: usize) -> bool {
-    info.get(name)
-        .filter(|f| f.present[row])
-        .and_then(|f| f.value.slice_rows(row..row + 1).ok())
+    row_value(info, name, row)
         .and_then(|t| t.to_bool_vec().ok())
         .is_some_and(|v| v.first().copied().unwrap_or(false))
 }
@@ -30,14 +34,7 @@ fn flag(info: &InfoBatch, name: &str, row: usize) -> bool {
 /// A non-negative integer info field of one row; None when absent or negative (MILLION's
 /// `steps_to_success` is -1 for a trial that has not succeeded).
 fn count(info: &InfoBatch, name: &str, row: usize) -> Option<u64> {
-    let f = info.get(name).filter(|f| f.present[row])?;
-    let v = *f
-        .value
-        .slice_rows(row..row + 1)
-        .ok()?
-        .to_i64_vec()
-        .ok()?
-        .first()?;
+    let v = *row_value(info, name, row)?.to_i64_vec().ok()?.first()?;
     u64::try_from(v).ok()
 }
 
@@ -170,7 +167,92 @@ impl EpisodeReturns {
 
 #[cfg(test)]
 mod tests {
+    use million_env::{Fields, InfoField, Tensor};
+
     use super::*;
+
+    fn info(fields: Vec<InfoField>) -> InfoBatch {
+        InfoBatch(fields)
+    }
+
+    fn field(name: &str, value: Tensor) -> InfoField {
+        let rows = value.rows();
+        InfoField {
+            name: name.into(),
+            value,
+            present: vec![true; rows],
+        }
+    }
+
+    /// A MILLION step info of `trial_end`, `success` and `steps_to_success` per row.
+    fn trial_info(end: &[bool], success: &[bool], steps: &[i64]) -> InfoBatch {
+        let n = end.len();
+        info(vec![
+            field("trial_end", Tensor::from_bool(vec![n], end).unwrap()),
+            field("success", Tensor::from_bool(vec![n], success).unwrap()),
+            field(
+                "steps_to_success",
+                Tensor::from_i64(vec![n], steps).unwrap(),
+            ),
+        ])
+    }
+
+    fn step(info: InfoBatch, final_info: Option<InfoBatch>, terminated: Vec<bool>) -> StepBatch {
+        let n = terminated.len();
+        StepBatch {
+            group: 0,
+            env_offset: 0,
+            obs: Fields::default(),
+            reward: vec![0.0; n],
+            terminated,
+            truncated: vec![false; n],
+            cut: vec![false; n],
+            info,
+            final_obs: None,
+            final_info,
+        }
+    }
+
+    #[test]
+    fn trial_outcomes_carry_how_soon_a_success_came() {
+        // Row 0 ends a successful trial mid-episode, row 1 a failed one, row 2 runs on, and
+        // row 3 ends its episode with a success: under SAME_STEP its `info` is the next
+        // episode's reset (-1) and the ended trial's figures are in `final_info`.
+        let now = trial_info(
+            &[true, true, false, false],
+            &[true, false, false, false],
+            &[42, -1, 7, -1],
+        );
+        let ending = trial_info(
+            &[false, false, false, true],
+            &[false, false, false, true],
+            &[0, 0, 0, 9],
+        );
+        let mut tracker = TrialTracker::new(4, "none");
+        let out = tracker.outcomes(0, &step(now, Some(ending), vec![false, false, false, true]));
+        let got: Vec<(usize, bool, Option<u64>)> = out
+            .iter()
+            .map(|t| (t.row, t.success, t.steps_to_success))
+            .collect();
+        assert_eq!(
+            got,
+            [(0, true, Some(42)), (1, false, None), (3, true, Some(9))]
+        );
+    }
+
+    #[test]
+    fn an_env_without_steps_to_success_reports_none() {
+        let n = 1;
+        let only_ends = info(vec![
+            field("trial_end", Tensor::from_bool(vec![n], &[true]).unwrap()),
+            field("success", Tensor::from_bool(vec![n], &[true]).unwrap()),
+        ]);
+        let mut tracker = TrialTracker::new(n, "none");
+        let out = tracker.outcomes(0, &step(only_ends, None, vec![false]));
+        assert_eq!(out.len(), 1);
+        assert!(out[0].success);
+        assert_eq!(out[0].steps_to_success, None);
+    }
 
     #[test]
     fn success_table_means_over_tasks() {
