@@ -170,8 +170,29 @@ def test_steps_to_success_says_how_soon_a_trial_first_succeeded(action_repeat: i
     for hit, seen in zip(hits, first_hits, strict=True):
         assert seen - action_repeat < hit <= seen
     # Within a trial the field runs: -1 until the success, then the step it happened at.
-    running = [r["info"]["steps_to_success"] for r in records if r["info"]["trial"] == 1]
-    assert running[0] == -1 and hits[0] in running
+    running = [
+        r["info"]["steps_to_success"]
+        for r in records
+        if r["info"]["trial"] == 1 and r["info"]["phase"] == "trial" and not r["info"]["trial_end"]
+    ]
+    first = running.index(hits[0])
+    assert first > 0
+    assert running[:first] == [-1] * first
+    assert running[first:] == [hits[0]] * (len(running) - first)
+
+
+def test_steps_to_success_of_a_trial_that_ends_at_its_success() -> None:
+    """`end_on_success=True` (PointGoal's default): the trial ends at the env step that
+    succeeds, which is the step `steps_to_success` names."""
+    env = make(trials=2, trial_len=30, end_on_success=True)
+    records = run_episode(env, walk_to_goal, seed=1)
+    ends = [i for i, r in enumerate(records) if r["info"]["trial_end"]]
+    assert [records[i]["info"]["success"] for i in ends] == [True, True]
+    for i in ends:
+        # Action repeat 1: one env step after the previous observation's count.
+        assert (
+            records[i]["info"]["steps_to_success"] == records[i - 1]["info"]["steps_in_trial"] + 1
+        )
 
 
 def test_mixed_outcomes_follow_the_protocol() -> None:
