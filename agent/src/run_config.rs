@@ -214,8 +214,11 @@ impl RunConfig {
         if self.eval.episodes == 0 {
             return bad("eval.episodes must be > 0".into());
         }
-        if self.eval.first_trial_within.contains(&0) {
-            return bad("eval.first_trial_within: every budget must be > 0 env steps".into());
+        let budgets = &self.eval.first_trial_within;
+        if budgets.contains(&0) || (1..budgets.len()).any(|i| budgets[..i].contains(&budgets[i])) {
+            return bad(format!(
+                "eval.first_trial_within: budgets must be distinct and > 0 env steps, got {budgets:?}"
+            ));
         }
         if self.train.log_interval == 0 {
             return bad("train.log_interval must be > 0".into());
@@ -379,5 +382,10 @@ mod tests {
         assert!(err.to_string().contains("groups"), "{err}");
         let err = RunConfig::from_toml_str("[train]\ntotal_steps = 3\n").unwrap_err();
         assert!(err.to_string().contains("total_steps"), "{err}");
+        for budgets in ["[0]", "[50, 50]"] {
+            let text = format!("[eval]\nfirst_trial_within = {budgets}\n");
+            let err = RunConfig::from_toml_str(&text).unwrap_err();
+            assert!(err.to_string().contains("first_trial_within"), "{err}");
+        }
     }
 }

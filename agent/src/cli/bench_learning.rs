@@ -405,7 +405,11 @@ fn print_report(r: &LearningReport) {
                 "  first trials successful within {} env steps, gap ≥ {:.2} at the end: {}",
                 w.env_steps,
                 a.target_gap,
-                if w.final_gap_met { "MET" } else { "NOT MET" }
+                match (w.gaps.is_empty(), w.final_gap_met) {
+                    (true, _) => "not measured (the ablation's evaluations lack this budget)",
+                    (false, true) => "MET",
+                    (false, false) => "NOT MET",
+                }
             );
             for g in &w.gaps {
                 println!(
