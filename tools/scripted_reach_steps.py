@@ -1,12 +1,13 @@
 """How soon a first trial can succeed on MILLION's ML1 reach-v3: the yardsticks of
-`eval.first_trial_within` and `million bench learning --within-env-steps`.
+`eval.first_trial_within`, whose budgets `million bench learning` reports the gaps for.
 
 Two policies play one-trial episodes of `million/ML1-train` and `million/ML1-test` (the
 protocol's defaults: 200 env steps per trial, action repeat 2) and report each trial's
 `steps_to_success`:
 
 - `scripted`: Meta-World's own `SawyerReachV3Policy`, given the goal from info (what an
-  agent that read the goal word perfectly could do, at Meta-World's scripted pace);
+  agent that read the goal word perfectly could do at the scripted policy's pace, under the
+  protocol's action repeat 2);
 - `random`: uniform actions (what a first trial without any information scores).
 
 Run: `.venv/bin/python tools/scripted_reach_steps.py [--episodes 50]`.
