@@ -82,6 +82,20 @@ pub struct CurvePoint {
     pub first_trial_within: BTreeMap<u64, f64>,
 }
 
+impl CurvePoint {
+    /// The curve's point of one evaluation made at `agent_steps`, `wall_s` into the run.
+    fn of(r: &EvalReport, agent_steps: u64, wall_s: f64) -> Self {
+        Self {
+            agent_steps,
+            wall_s,
+            split: r.split.clone(),
+            success: r.mean,
+            first_trial: r.first_trial,
+            first_trial_within: r.first_trial_within.clone(),
+        }
+    }
+}
+
 #[derive(Debug, Clone, Serialize)]
 pub struct TrainSummary {
     pub agent_steps: u64,
@@ -388,14 +402,11 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
                         }
                     };
                     record_eval(&mut s, &r);
-                    curve.push(CurvePoint {
+                    curve.push(CurvePoint::of(
+                        &r,
                         agent_steps,
-                        wall_s: start.elapsed().as_secs_f64(),
-                        split: r.split.clone(),
-                        success: r.mean,
-                        first_trial: r.first_trial,
-                        first_trial_within: r.first_trial_within.clone(),
-                    });
+                        start.elapsed().as_secs_f64(),
+                    ));
                     bar.println(format!(
                         "eval {} at {agent_steps} steps: success {:.3} (first trials {:.3})",
                         r.split, r.mean, r.first_trial
@@ -479,14 +490,11 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         for mut ev in evaluators {
             let r = ev.run(&model).await?;
             record_eval(&mut s, &r);
-            curve.push(CurvePoint {
+            curve.push(CurvePoint::of(
+                &r,
                 agent_steps,
-                wall_s: start.elapsed().as_secs_f64(),
-                split: r.split.clone(),
-                success: r.mean,
-                first_trial: r.first_trial,
-                first_trial_within: r.first_trial_within.clone(),
-            });
+                start.elapsed().as_secs_f64(),
+            ));
             final_eval.push(r);
             ev.close().await?;
         }
