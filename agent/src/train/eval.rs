@@ -314,44 +314,18 @@ pub fn equal_share_per_task(tasks: &[String]) -> (Vec<bool>, usize) {
 
 #[cfg(test)]
 mod tests {
-    use million_env::{Fields, InfoBatch, InfoField, Tensor};
-
     use super::*;
+    use crate::train::outcomes::fixtures::{step, trial_info};
 
     /// One step reply in which every row ends its first trial, with its success and its
     /// `steps_to_success` (or without that field).
     fn first_trials_end(success: &[bool], steps: Option<&[i64]>) -> StepBatch {
         let n = success.len();
-        let field = |name: &str, value: Tensor| InfoField {
-            name: name.into(),
-            value,
-            present: vec![true; n],
-        };
-        let mut info = vec![
-            field(
-                "trial_end",
-                Tensor::from_bool(vec![n], &vec![true; n]).unwrap(),
-            ),
-            field("success", Tensor::from_bool(vec![n], success).unwrap()),
-        ];
-        if let Some(steps) = steps {
-            info.push(field(
-                "steps_to_success",
-                Tensor::from_i64(vec![n], steps).unwrap(),
-            ));
-        }
-        StepBatch {
-            group: 0,
-            env_offset: 0,
-            obs: Fields::default(),
-            reward: vec![0.0; n],
-            terminated: vec![false; n],
-            truncated: vec![false; n],
-            cut: vec![false; n],
-            info: InfoBatch(info),
-            final_obs: None,
-            final_info: None,
-        }
+        step(
+            trial_info(&vec![true; n], success, steps),
+            None,
+            vec![false; n],
+        )
     }
 
     #[test]

@@ -165,15 +165,10 @@ impl EpisodeReturns {
     }
 }
 
+/// Step replies built by hand, for the tests of what is read from them.
 #[cfg(test)]
-mod tests {
-    use million_env::{Fields, InfoField, Tensor};
-
-    use super::*;
-
-    fn info(fields: Vec<InfoField>) -> InfoBatch {
-        InfoBatch(fields)
-    }
+pub(crate) mod fixtures {
+    use million_env::{Fields, InfoBatch, InfoField, StepBatch, Tensor};
 
     fn field(name: &str, value: Tensor) -> InfoField {
         let rows = value.rows();
@@ -184,20 +179,26 @@ mod tests {
         }
     }
 
-    /// A MILLION step info of `trial_end`, `success` and `steps_to_success` per row.
-    fn trial_info(end: &[bool], success: &[bool], steps: &[i64]) -> InfoBatch {
+    /// A MILLION step info of `trial_end` and `success` per row, and `steps_to_success`
+    /// unless None (an env that does not report it).
+    pub(crate) fn trial_info(end: &[bool], success: &[bool], steps: Option<&[i64]>) -> InfoBatch {
         let n = end.len();
-        info(vec![
+        let mut fields = vec![
             field("trial_end", Tensor::from_bool(vec![n], end).unwrap()),
             field("success", Tensor::from_bool(vec![n], success).unwrap()),
-            field(
-                "steps_to_success",
-                Tensor::from_i64(vec![n], steps).unwrap(),
-            ),
-        ])
+        ];
+        if let Some(steps) = steps {
+            let value = Tensor::from_i64(vec![n], steps).unwrap();
+            fields.push(field("steps_to_success", value));
+        }
+        InfoBatch(fields)
     }
 
-    fn step(info: InfoBatch, final_info: Option<InfoBatch>, terminated: Vec<bool>) -> StepBatch {
+    pub(crate) fn step(
+        info: InfoBatch,
+        final_info: Option<InfoBatch>,
+        terminated: Vec<bool>,
+    ) -> StepBatch {
         let n = terminated.len();
         StepBatch {
             group: 0,
@@ -212,6 +213,12 @@ mod tests {
             final_info,
         }
     }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fixtures::{step, trial_info};
+    use super::*;
 
     #[test]
     fn trial_outcomes_carry_how_soon_a_success_came() {
@@ -221,12 +228,12 @@ mod tests {
         let now = trial_info(
             &[true, true, false, false],
             &[true, false, false, false],
-            &[42, -1, 7, -1],
+            Some(&[42, -1, 7, -1]),
         );
         let ending = trial_info(
             &[false, false, false, true],
             &[false, false, false, true],
-            &[0, 0, 0, 9],
+            Some(&[0, 0, 0, 9]),
         );
         let mut tracker = TrialTracker::new(4, "none");
         let out = tracker.outcomes(0, &step(now, Some(ending), vec![false, false, false, true]));
@@ -243,10 +250,7 @@ mod tests {
     #[test]
     fn an_env_without_steps_to_success_reports_none() {
         let n = 1;
-        let only_ends = info(vec![
-            field("trial_end", Tensor::from_bool(vec![n], &[true]).unwrap()),
-            field("success", Tensor::from_bool(vec![n], &[true]).unwrap()),
-        ]);
+        let only_ends = trial_info(&[true], &[true], None);
         let mut tracker = TrialTracker::new(n, "none");
         let out = tracker.outcomes(0, &step(only_ends, None, vec![false]));
         assert_eq!(out.len(), 1);
