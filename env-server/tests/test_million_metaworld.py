@@ -73,6 +73,7 @@ def test_registered_ids() -> None:
         "goal_in_state": False,
         "end_on_success": False,
         "word_noise": 0.0,
+        "object_position": "task",
     }
     # The id fixes its benchmark and split; they are not kwargs.
     with pytest.raises(TypeError, match="benchmark"):
@@ -391,3 +392,36 @@ def test_goal_in_state_shows_the_real_goal_in_trials_only() -> None:
         hidden.close()
     with pytest.raises(ValueError, match="goal_in_state"):
         make("million/ML1-train", goal_in_state="yes")
+
+
+def test_object_position_centre_puts_reachs_puck_at_one_place_for_every_goal() -> None:
+    """reach-v3 draws its puck with the goal, so on a split's fixed goals the puck's place
+    names the goal. `object_position="centre"` puts it at the centre of its range for every
+    goal, in the simulator and in both frames of the state, and leaves the goal as it was."""
+    own = make("million/ML1-train")
+    centred = make("million/ML1-train", object_position="centre")
+    try:
+        pucks: dict[str, set[tuple[float, ...]]] = {"own": set(), "centred": set()}
+        for seed in range(4):
+            goals = {}
+            for name, env in (("own", own), ("centred", centred)):
+                obs, info = env.reset(seed=seed)
+                goals[name] = real_goal(env)
+                obs, info, _ = skip_instruction(env, obs, info)
+                state = obs["state"]
+                np.testing.assert_array_equal(state[4:7], state[22:25])
+                task = env.current_task
+                assert isinstance(task, MetaWorldTask)
+                np.testing.assert_allclose(task.env.unwrapped._get_pos_objects(), state[4:7])
+                pucks[name].add(tuple(np.round(state[4:7], 4)))
+            np.testing.assert_array_equal(goals["centred"], goals["own"])
+        # Own pucks differ from goal to goal; centred ones sit at the range's centre.
+        assert len(pucks["own"]) == 4
+        assert pucks["centred"] == {(0.0, 0.65, 0.02)}
+    finally:
+        own.close()
+        centred.close()
+    with pytest.raises(ValueError, match="object_position"):
+        make("million/ML1-train", object_position="middle")
+    with pytest.raises(ValueError, match="push-v3"):
+        make("million/ML10-train", tasks=["reach-v3", "push-v3"], object_position="centre")

@@ -26,12 +26,22 @@ def make_metaworld_million(
     goal_in_state: bool = False,
     end_on_success: bool = False,
     word_noise: float = 0.0,
+    object_position: str = "task",
 ) -> MillionEnv:
     """MILLION episodes over a Meta-World v3 benchmark split (ML1 needs `task`; ML10 and ML45
     take `tasks`, a subset of the split's classes); trials run their full length (the
-    original code; `million_env.million.protocol` says why)."""
+    original code; `million_env.million.protocol` says why). `object_position="centre"`
+    puts reach-v3's puck at one place for every goal, so that its position no longer tells
+    which of the split's goals an episode has."""
     sentences = metaworld_instructions(instruction_set)
-    source = MetaWorldSource(benchmark, split, task=task, task_order=task_order, tasks=tasks)
+    source = MetaWorldSource(
+        benchmark,
+        split,
+        task=task,
+        task_order=task_order,
+        tasks=tasks,
+        object_position=object_position,
+    )
     try:
         return MillionEnv(
             source,

@@ -12,14 +12,24 @@ import numpy.typing as npt
 from million_env.metaworld_tasks import ALL_TASK_NAMES, MetaWorldTaskSampler
 from million_env.rendering import render_metaworld
 
+#: `object_position` values: each task's own object position, or every task's object at the
+#: centre of its class's initial-position range.
+OBJECT_POSITIONS = ("task", "centre")
+
+#: Classes whose object takes no part in the task, so it can be moved without changing it.
+#: reach-v3 draws its puck's position with the goal in one random vector: on a split's fixed
+#: goals the puck tells a policy which goal it is, without any word (LEARNING.md, rung 2).
+DISTRACTOR_OBJECT_TASKS = ("reach-v3",)
+
 
 class MetaWorldTask:
     """A Meta-World env with one task (class + goal) set on it."""
 
-    def __init__(self, name: str, task_id: int, env: Any) -> None:
+    def __init__(self, name: str, task_id: int, env: Any, object_at_centre: bool = False) -> None:
         self._name = name
         self._task_id = task_id
         self._env = env
+        self._object_at_centre = object_at_centre
 
     @property
     def name(self) -> str:
@@ -36,6 +46,21 @@ class MetaWorldTask:
     def reset(self) -> npt.NDArray[np.float64]:
         # set_task froze the task's random vector, so every reset keeps the goal.
         obs, _ = self._env.reset()
+        if self._object_at_centre:
+            obs = self._move_object_to_centre()
+        return obs
+
+    def _move_object_to_centre(self) -> npt.NDArray[np.float64]:
+        """Puts the object at the centre of its class's range and observes again, with the
+        previous frame (entries 18-36) equal to the current one, as after Meta-World's reset."""
+        env = self._env.unwrapped
+        space = env._random_reset_space
+        centre = (np.asarray(space.low[:3]) + np.asarray(space.high[:3])) / 2.0
+        env.obj_init_pos = centre
+        env._set_obj_xyz(centre)
+        obs = np.asarray(env._get_obs(), dtype=np.float64)
+        env._prev_obs = obs[:18].copy()
+        obs[18:36] = env._prev_obs
         return obs
 
     def step(self, action: npt.NDArray[np.float32]) -> tuple[npt.NDArray[np.float64], float, bool]:
@@ -67,10 +92,24 @@ class MetaWorldSource:
         task: str | None = None,
         task_order: str = "random",
         tasks: Sequence[str] | None = None,
+        object_position: str = "task",
     ) -> None:
+        if object_position not in OBJECT_POSITIONS:
+            raise ValueError(
+                f"object_position must be one of {OBJECT_POSITIONS}, got {object_position!r}"
+            )
         self._sampler = MetaWorldTaskSampler(
             benchmark, split, task=task, task_order=task_order, tasks=tasks
         )
+        self._object_at_centre = object_position == "centre"
+        if self._object_at_centre:
+            moved = [n for n in self._sampler.task_names if n not in DISTRACTOR_OBJECT_TASKS]
+            if moved:
+                self._sampler.close()
+                raise ValueError(
+                    f'object_position="centre" would change tasks {moved}: only the object '
+                    f"of {list(DISTRACTOR_OBJECT_TASKS)} takes no part in its task"
+                )
         # Every Meta-World v3 env has the same action space and path limit; read
         # them from one env so that a change upstream is followed.
         probe = self._sampler.sample()
@@ -98,7 +137,7 @@ class MetaWorldSource:
 
     def sample(self) -> MetaWorldTask:
         sampled = self._sampler.sample()
-        return MetaWorldTask(sampled.name, sampled.task_id, sampled.env)
+        return MetaWorldTask(sampled.name, sampled.task_id, sampled.env, self._object_at_centre)
 
     def close(self) -> None:
         self._sampler.close()

@@ -32,6 +32,7 @@ _MEANINGS = {
     "goal_in_state": "True = diagnostic: the real goal in the trial state's last 3 entries",
     "end_on_success": "True = a trial ends at its success (Meta-World default: full length)",
     "word_noise": "p: each instruction word but goal_pos replaced by a random unused word",
+    "object_position": "'task'|'centre' (reach-v3 only: its puck at one place for every goal)",
 }
 
 
