@@ -1,4 +1,4 @@
-//! Typed agent configuration. Every number of ALGORITHM.md §2–§6 is a field here; the defaults
+//! Typed agent configuration. Every number of docs/ALGORITHM.md §2–§6 is a field here; the defaults
 //! are the paper's ML10 run. Unknown keys are rejected so that a typo in a TOML file is an error
 //! instead of a silently ignored setting.
 
@@ -225,7 +225,7 @@ pub struct VmpoConfig {
     /// Adam step size of the multipliers; `None` = `optim.lr` (the original: one Adam over
     /// everything). With lr 1e-4 and clamp form a multiplier moves ~1e-4 per update, so in a
     /// few thousand updates η cannot follow the advantages' scale and the KL bounds are not
-    /// enforced (ALGORITHM.md §4.8 leaves the form open).
+    /// enforced (docs/ALGORITHM.md §4.8 leaves the form open).
     pub multiplier_lr: Option<f64>,
     /// The policy the KL terms measure from: "behaviour" (the original: the distribution
     /// stored with each segment at acting time) or "target" (V-MPO's π_old [V]: a copy of the
@@ -300,12 +300,15 @@ pub struct BufferConfig {
     /// Actor weights are refreshed every `target_period` updates; the buffer holds
     /// `batch_segments · target_period` segments.
     pub target_period: usize,
-    /// Upper bound on (samples consumed) / (samples produced).
+    /// (samples consumed) / (samples produced): what the learner makes under lockstep pacing,
+    /// a ceiling under free pacing.
     pub replay_ratio: f64,
-    /// Lower bound on the same ratio (0: none). While the learner is more than a batch
-    /// behind it, the actor holds its envs, so a run makes the same updates per agent step
-    /// on a machine whose envs outpace its learner as on one where they do not.
-    pub min_replay_ratio: f64,
+    /// How the learner keeps pace with the actors (train/learner_loop.rs). "lockstep": the
+    /// learner makes exactly the updates `replay_ratio` allows after each batch of segments
+    /// and the actors wait for it, one round of segments behind, so a seed's run is the same
+    /// on any machine at any load. "free": neither waits (speed benchmarks only; updates per
+    /// agent step then follow the machine's load).
+    pub pacing: Pacing,
     /// The learner starts once the buffer holds this many segments (at least `batch_segments`).
     pub min_segments: usize,
 }
@@ -316,10 +319,19 @@ impl Default for BufferConfig {
             batch_segments: 128,
             target_period: 100,
             replay_ratio: 4.0,
-            min_replay_ratio: 0.0,
+            pacing: Pacing::Lockstep,
             min_segments: 128,
         }
     }
+}
+
+/// `buffer.pacing`: see [`BufferConfig::pacing`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Pacing {
+    #[default]
+    Lockstep,
+    Free,
 }
 
 impl BufferConfig {
@@ -500,12 +512,6 @@ impl AgentConfig {
         }
         if self.buffer.replay_ratio <= 0.0 {
             return bad("buffer.replay_ratio must be > 0".into());
-        }
-        if !(0.0..=self.buffer.replay_ratio).contains(&self.buffer.min_replay_ratio) {
-            return bad(format!(
-                "buffer.min_replay_ratio must lie in [0, replay_ratio = {}], got {}",
-                self.buffer.replay_ratio, self.buffer.min_replay_ratio
-            ));
         }
         if self.buffer.min_segments > self.buffer.capacity() {
             return bad("buffer.min_segments exceeds the buffer capacity".into());

@@ -18,6 +18,12 @@ use prost::Message;
 /// Named scalar values recorded at one agent step.
 pub type Scalars = BTreeMap<String, f64>;
 
+/// Whether a logged metric measures the machine (rates, CPU and wait times) rather than the
+/// run: everything else is the same for two lockstep runs of one config and seed.
+pub fn depends_on_the_machine(name: &str) -> bool {
+    name.ends_with("_per_s") || name.starts_with("cpu/") || name.ends_with("_wait_s")
+}
+
 /// Writes every record to both `metrics.jsonl` and a TensorBoard event file.
 pub struct MetricsWriter {
     jsonl: BufWriter<File>,

@@ -1,6 +1,6 @@
 //! The FIFO segment buffer: order, uniform sampling, replay-ratio throttling.
 
-use million::algo::buffer::{ReplayFloor, Segment, SegmentBuffer};
+use million::algo::buffer::{Segment, SegmentBuffer};
 use million::config::BufferConfig;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
@@ -105,48 +105,4 @@ fn the_learner_is_throttled_to_the_replay_ratio() {
     assert!(buf.ready(), "8 ≤ 1.5 · 6");
     let c = buf.counters();
     assert_eq!((c.produced_segments, c.consumed_segments), (6, 6));
-}
-
-#[test]
-fn the_replay_floor_holds_the_actor_only_while_the_learner_can_sample() {
-    let cfg = BufferConfig {
-        min_replay_ratio: 1.5,
-        min_segments: 4,
-        ..config(2, 10, 2.0)
-    };
-    let floor = ReplayFloor::new(&cfg).expect("a floor is set");
-    assert_eq!(
-        ReplayFloor::new(&config(2, 10, 2.0)),
-        None,
-        "0 sets no floor"
-    );
-    let mut buf = SegmentBuffer::new(&cfg);
-    let mut rng = StdRng::seed_from_u64(3);
-    let mut held = 0;
-    // An actor that produces whenever the floor lets it, and a learner that samples only
-    // while the actor is held: the ratio climbs to the floor and stays there.
-    for id in 0..200 {
-        if floor.holds_actor(buf.counters(), buf.len()) {
-            held += 1;
-            assert!(
-                buf.ready(),
-                "held while the learner could not sample: deadlock"
-            );
-            buf.sample(&mut rng).unwrap();
-        } else {
-            buf.push(segment(id));
-        }
-    }
-    assert!(held > 50, "the floor never held the actor ({held})");
-    let c = buf.counters();
-    let ratio = c.consumed_segments as f64 / c.produced_segments as f64;
-    assert!((1.4..=1.5).contains(&ratio), "replay ratio {ratio}");
-    // Below min_segments the learner cannot start, so the actor is never held.
-    assert!(!floor.holds_actor(
-        million::algo::buffer::BufferCounters {
-            produced_segments: 3,
-            consumed_segments: 0
-        },
-        3
-    ));
 }

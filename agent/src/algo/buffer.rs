@@ -1,4 +1,4 @@
-//! Segments and the FIFO segment buffer with replay-ratio accounting (ALGORITHM.md §5).
+//! Segments and the FIFO segment buffer with replay-ratio accounting (docs/ALGORITHM.md §5).
 
 use std::collections::VecDeque;
 
@@ -142,36 +142,6 @@ pub struct SegmentBuffer {
     replay_ratio: f64,
     produced: u64,
     consumed: u64,
-}
-
-/// The lower bound on the replay ratio (`buffer.min_replay_ratio`), applied on the actor's
-/// side: the actor holds its envs while the learner is at least one batch below the floor.
-/// It holds only while the learner can sample at once (the buffer has its `min_segments`,
-/// and a batch more stays under the floor, so under the ceiling too): waiting for the
-/// learner can never deadlock.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ReplayFloor {
-    min_ratio: f64,
-    batch: u64,
-    min_segments: usize,
-}
-
-impl ReplayFloor {
-    /// `None` when the config sets no floor.
-    pub fn new(cfg: &crate::config::BufferConfig) -> Option<Self> {
-        (cfg.min_replay_ratio > 0.0).then(|| Self {
-            min_ratio: cfg.min_replay_ratio,
-            batch: cfg.batch_segments as u64,
-            min_segments: cfg.min_segments.max(cfg.batch_segments),
-        })
-    }
-
-    /// Whether the actor must wait for the learner, given the buffer's counters and length.
-    pub fn holds_actor(&self, counters: BufferCounters, buffer_len: usize) -> bool {
-        buffer_len >= self.min_segments
-            && (counters.consumed_segments + self.batch) as f64
-                <= self.min_ratio * counters.produced_segments as f64
-    }
 }
 
 /// Produced/consumed counters, for logging and checkpoints.

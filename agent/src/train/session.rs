@@ -14,15 +14,17 @@ use million_env::{AutoresetMode, EnvPool, PoolConfig, SupervisedServer};
 use serde::Serialize;
 use tch::nn::VarStore;
 
-use crate::algo::buffer::{ReplayFloor, SegmentBuffer};
+use crate::algo::buffer::{BufferCounters, SegmentBuffer};
 use crate::checkpoint;
-use crate::learner::Learner;
+use crate::learner::{Learner, UpdateMetrics};
 use crate::metrics::{MetricsWriter, Scalars};
 use crate::model::Model;
 use crate::run_config::RunConfig;
 use crate::train::actor::{ActionBounds, GroupActor};
 use crate::train::eval::{EvalReport, Evaluator};
-use crate::train::learner_loop::{LearnerThreadArgs, Shared, run_learner, wait_for_learner};
+use crate::train::learner_loop::{
+    LearnerLink, LearnerProgress, LearnerThreadArgs, LearnerThreadResult, ToLearner, run_learner,
+};
 use crate::train::outcomes::{EpisodeReturns, SuccessTable, TrialTracker};
 use crate::train::servers::{EnvAccess, client_config, start_local_servers};
 use crate::train::weights::thread_cpu_seconds;
@@ -139,328 +141,57 @@ pub fn latest_checkpoint(path: &Path) -> anyhow::Result<PathBuf> {
         .with_context(|| format!("no checkpoint files in {}", dir.display()))
 }
 
-struct Intervals {
-    next_log: u64,
-    next_eval: u64,
-    next_ckpt: u64,
-}
-
 fn next_multiple(now: u64, every: u64) -> u64 {
     now.checked_div(every)
         .map_or(u64::MAX, |k| (k + 1).saturating_mul(every))
 }
 
+/// One run, in order: set-up (servers, learner resumed or new, env pool, evaluators, run
+/// folder), the learner thread, the actor loop until a stop rule holds, then the learner's
+/// last updates, the final checkpoint and the final evaluation.
 pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let cfg = opts.config.clone();
-    let agent_cfg = cfg.agent();
-    agent_cfg.runtime.apply();
+    cfg.agent().runtime.apply();
     tch::manual_seed(cfg.env.agent_seed as i64);
-    let device = cfg.runtime.device();
-
-    let (local_servers, servers): (Vec<SupervisedServer>, Vec<String>) = if opts.servers.is_empty()
-    {
-        let local =
-            start_local_servers(cfg.runtime.env_servers, &cfg.runtime.env_server_args).await?;
-        let addrs = local.iter().map(|s| s.addr().to_owned()).collect();
-        (local, addrs)
-    } else {
-        (vec![], opts.servers.clone())
-    };
-
-    let mut learner = Learner::new(agent_cfg.clone(), device);
-    let mut buffer = SegmentBuffer::new(&agent_cfg.buffer);
-    let mut agent_steps = 0u64;
-    if opts.resume {
-        let dir = opts
-            .run_dir
-            .as_ref()
-            .context("--resume needs a run directory")?;
-        let path = latest_checkpoint(dir)?;
-        let meta = checkpoint::load(&path, &mut learner)
-            .with_context(|| format!("resuming from {}", path.display()))?;
-        agent_steps = meta.counters.agent_steps;
-        buffer.restore_counters(meta.counters.buffer);
-        tracing::info!(checkpoint = %path.display(), agent_steps, updates = learner.updates(), "resumed");
-    }
+    let (local_servers, servers) = env_servers(&opts).await?;
+    let (learner, buffer, agent_steps) = new_or_resumed_learner(&opts)?;
     let start_updates = learner.updates();
-    let mut actor_vs = VarStore::new(device);
+    let mut actor_vs = VarStore::new(cfg.runtime.device());
     let model = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
     learner
         .copy_weights_to(&mut actor_vs)
         .context("initial actor weights")?;
-
     let client = client_config(&cfg, &opts.env_access);
-    let mut pool_cfg = PoolConfig::new(servers.clone(), cfg.env.id.clone(), cfg.env.num_envs);
-    pool_cfg.kwargs = cfg.env_kwargs()?;
-    pool_cfg.groups = cfg.env.groups;
-    pool_cfg.seed = Some(cfg.env.seed.wrapping_add(agent_steps));
-    pool_cfg.autoreset = AutoresetMode::SameStep;
-    pool_cfg.client = client.clone();
-    let mut pool = EnvPool::connect(pool_cfg)
-        .await
-        .with_context(|| format!("env pool for {} on {}", cfg.env.id, servers.join(", ")))?;
-    let bounds = ActionBounds::from_space(&pool.spec().action_space, cfg.model.action_dim)?;
-    let mut evaluators = vec![];
-    if opts.evaluate {
-        for split in cfg.eval_splits()? {
-            evaluators.push(
-                Evaluator::connect(
-                    &servers,
-                    split,
-                    cfg.eval.episodes,
-                    &cfg.eval.first_trial_within,
-                    cfg.eval.seed,
-                    client.clone(),
-                    cfg.model.action_dim,
-                )
-                .await?,
-            );
-        }
-    }
-    let mut metrics = match &opts.run_dir {
-        Some(dir) => {
-            std::fs::create_dir_all(dir.join("checkpoints"))
-                .with_context(|| format!("creating {}", dir.display()))?;
-            std::fs::write(dir.join("config.toml"), toml::to_string(&cfg)?)?;
-            Some(MetricsWriter::open(dir)?)
-        }
-        None => None,
+    let pool = connect_pool(&cfg, &servers, &client, agent_steps).await?;
+    let evaluators = if opts.evaluate {
+        connect_evaluators(&cfg, &servers, &client).await?
+    } else {
+        vec![]
     };
-
+    let metrics = open_run_dir(&opts)?;
     let mut extra = HashMap::new();
     extra.insert(RUN_CONFIG_KEY.to_owned(), toml::to_string(&cfg)?);
-    let shared = Arc::new(Shared::default());
-    shared.agent_steps.store(agent_steps, Ordering::Relaxed);
-    let (tx, rx) = mpsc::channel();
-    let learner_handle = {
-        let shared = shared.clone();
-        let args = LearnerThreadArgs {
-            learner,
-            buffer,
-            segments: rx,
-            shared,
-            seed: cfg.env.agent_seed,
-            extra_meta: extra.clone(),
-        };
-        std::thread::Builder::new()
-            .name("learner".into())
-            .spawn(move || run_learner(args))
-            .context("starting the learner thread")?
-    };
+    let mut learner_thread = LearnerThread::spawn(learner, buffer, &cfg, extra.clone())?;
 
-    let bar = if opts.progress {
-        let bar = ProgressBar::new(cfg.train.total_agent_steps);
-        bar.set_style(
-            ProgressStyle::with_template(
-                "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps  {msg}  ETA {eta}",
-            )
-            .expect("progress template")
-            .progress_chars("=> "),
-        );
-        bar.set_position(agent_steps);
-        bar
-    } else {
-        ProgressBar::hidden()
-    };
-
+    let mut run = ActorLoop::new(
+        &opts,
+        model,
+        actor_vs,
+        pool,
+        evaluators,
+        metrics,
+        agent_steps,
+    );
+    run.local_servers = local_servers;
     let start = Instant::now();
-    let start_steps = agent_steps;
     let cpu_start = thread_cpu_seconds();
-    let mut curve = vec![];
-    let mut iv = Intervals {
-        next_log: next_multiple(agent_steps, cfg.train.log_interval),
-        next_eval: next_multiple(agent_steps, cfg.train.eval_interval),
-        next_ckpt: next_multiple(agent_steps, cfg.train.checkpoint_interval),
-    };
-    let mut window = SuccessTable::default();
-    let mut returns = EpisodeReturns::new(pool.num_envs());
-    let mut trials = TrialTracker::new(pool.num_envs(), &pool.spec().env_id);
-    let mut last_log = (Instant::now(), agent_steps, 0u64);
-    let mut weights_version = 0u64;
-    let replay_floor = ReplayFloor::new(&cfg.buffer);
-    let mut actor_wait_s = 0.0;
-    let mut groups: Vec<GroupActor> = (0..pool.num_groups())
-        .map(|g| GroupActor::new(&model, &pool, g))
-        .collect();
-    let result: anyhow::Result<Option<&'static str>> = async {
-        for reset in pool.reset_all().await? {
-            groups[reset.group].observe_reset(&model, &reset.obs)?;
-        }
-        for g in groups.iter_mut() {
-            g.act_and_send(&model, &mut pool, &bounds, false)?;
-        }
-        let mut stop_reason = None;
-        while stop_reason.is_none() {
-            for gi in 0..groups.len() {
-                if gi == 0 && groups[0].segment_step() == 0 {
-                    weights_version = shared.weights.refresh(weights_version, &mut actor_vs);
-                }
-                let step = pool.recv(gi).await?;
-                let g = &mut groups[gi];
-                if let Some(batch) = g.observe_step(&model, &step, true)? {
-                    tx.send(batch)
-                        .map_err(|_| anyhow::anyhow!("the learner thread stopped"))?;
-                }
-                for t in trials.outcomes(g.offset, &step) {
-                    window.record(&t.task, t.success);
-                }
-                returns.record(g.offset, &step);
-                agent_steps += step.rows() as u64;
-                if let Some(floor) = &replay_floor {
-                    actor_wait_s +=
-                        wait_for_learner(floor, &shared, || !learner_handle.is_finished())
-                            .await
-                            .as_secs_f64();
-                }
-                g.act_and_send(&model, &mut pool, &bounds, false)?;
-            }
-            shared.agent_steps.store(agent_steps, Ordering::Relaxed);
-            bar.set_position(agent_steps);
-
-            let elapsed = start.elapsed().as_secs_f64();
-            if agent_steps >= iv.next_log {
-                iv.next_log = next_multiple(agent_steps, cfg.train.log_interval);
-                let progress = shared.progress.lock().expect("lock").clone();
-                let dt = last_log.0.elapsed().as_secs_f64().max(1e-9);
-                let sps = (agent_steps - last_log.1) as f64 / dt;
-                let ups = (progress.updates - last_log.2) as f64 / dt;
-                last_log = (Instant::now(), agent_steps, progress.updates);
-                let finished = returns.take_finished();
-                let mut s = Scalars::new();
-                s.insert("train/agent_steps_per_s".into(), sps);
-                s.insert("train/updates".into(), progress.updates as f64);
-                // Updates refused for a non-finite loss or gradient (nothing was changed).
-                s.insert(
-                    "learner/skipped_updates".into(),
-                    progress.skipped_updates as f64,
-                );
-                s.insert("train/updates_per_s".into(), ups);
-                s.insert("train/replay_ratio".into(), progress.replay_ratio);
-                s.insert("train/buffer_segments".into(), progress.buffer_len as f64);
-                s.insert("cpu/actor_s".into(), thread_cpu_seconds() - cpu_start);
-                // Seconds the actor held its envs for buffer.min_replay_ratio.
-                s.insert("train/actor_wait_s".into(), actor_wait_s);
-                s.insert("cpu/learner_s".into(), progress.cpu_seconds);
-                let restarts: u64 = local_servers.iter().map(SupervisedServer::restarts).sum();
-                s.insert("env/local_server_restarts".into(), restarts as f64);
-                if window.trials() > 0 {
-                    s.insert("train/success".into(), window.mean());
-                }
-                if window.tasks.len() > 1 {
-                    for (task, rate) in window.per_task() {
-                        s.insert(format!("train/task/{task}"), rate);
-                    }
-                }
-                if !finished.is_empty() {
-                    s.insert(
-                        "train/episode_return".into(),
-                        finished.iter().sum::<f64>() / finished.len() as f64,
-                    );
-                }
-                if let Some(m) = &progress.last
-                    && let Ok(serde_json::Value::Object(map)) = serde_json::to_value(m)
-                {
-                    for (k, v) in map {
-                        match v {
-                            // Per-task maps (task_psi_mass, ...): learner/<name>/<task id>
-                            serde_json::Value::Object(inner) => {
-                                for (id, x) in inner {
-                                    if let Some(x) = x.as_f64() {
-                                        s.insert(format!("learner/{k}/{id}"), x);
-                                    }
-                                }
-                            }
-                            v => {
-                                if let Some(x) = v.as_f64() {
-                                    s.insert(format!("learner/{k}"), x);
-                                }
-                            }
-                        }
-                    }
-                }
-                bar.set_message(format!(
-                    "{sps:.0} steps/s  {ups:.1} upd/s  train success {:.2}",
-                    window.mean()
-                ));
-                tracing::debug!(agent_steps, ?s, "log");
-                window = SuccessTable::default();
-                if let Some(w) = metrics.as_mut() {
-                    w.write(agent_steps, &s)?;
-                }
-            }
-            if agent_steps >= iv.next_eval && !evaluators.is_empty() {
-                iv.next_eval = next_multiple(agent_steps, cfg.train.eval_interval);
-                let mut s = Scalars::new();
-                for ev in evaluators.iter_mut() {
-                    // A failed periodic evaluation (its env servers lost on every attempt)
-                    // is skipped, not the end of the run: training has its own pool.
-                    let r = match ev.run(&model).await {
-                        Ok(r) => r,
-                        Err(e) => {
-                            tracing::warn!("evaluation at {agent_steps} steps skipped: {e:#}");
-                            continue;
-                        }
-                    };
-                    record_eval(&mut s, &r);
-                    curve.push(CurvePoint::of(
-                        &r,
-                        agent_steps,
-                        start.elapsed().as_secs_f64(),
-                    ));
-                    bar.println(format!(
-                        "eval {} at {agent_steps} steps: success {:.3} (first trials {:.3})",
-                        r.split, r.mean, r.first_trial
-                    ));
-                    if r.split == "train" && r.mean >= cfg.train.stop_at_success {
-                        stop_reason = Some(TARGET_REACHED);
-                    }
-                }
-                if let Some(w) = metrics.as_mut() {
-                    w.write(agent_steps, &s)?;
-                }
-            }
-            if agent_steps >= iv.next_ckpt {
-                iv.next_ckpt = next_multiple(agent_steps, cfg.train.checkpoint_interval);
-                if let Some(dir) = &opts.run_dir {
-                    *shared.checkpoint_request.lock().expect("lock") =
-                        Some(checkpoint_path(dir, agent_steps));
-                }
-            }
-            if let Some(e) = shared.checkpoint_error.lock().expect("lock").take() {
-                anyhow::bail!("writing a checkpoint: {e}");
-            }
-            if agent_steps >= cfg.train.total_agent_steps {
-                stop_reason = Some("step budget reached");
-            }
-            if opts.max_seconds.is_some_and(|m| elapsed >= m) {
-                stop_reason = Some("time limit reached");
-            }
-            if opts.interrupt.load(Ordering::Relaxed) {
-                stop_reason = Some("interrupted");
-            }
-        }
-        tracing::info!(
-            reason = stop_reason.unwrap_or(""),
-            agent_steps,
-            "training stops"
-        );
-        for gi in 0..groups.len() {
-            pool.recv(gi).await?;
-        }
-        Ok(stop_reason)
-    }
-    .await;
+    let outcome = run.run(&mut learner_thread).await;
     let actor_cpu_s = thread_cpu_seconds() - cpu_start;
     let wall_s = start.elapsed().as_secs_f64();
-    bar.finish_and_clear();
-    shared.stop.store(true, Ordering::Relaxed);
-    drop(tx);
-    let done = learner_handle
-        .join()
-        .map_err(|_| anyhow::anyhow!("the learner thread panicked"))?;
-    let progress = shared.progress.lock().expect("lock").clone();
-    let stop_reason = result?;
-    let mut learner = done.learner;
+    run.bar.finish_and_clear();
+
+    let (mut learner, buffer_counters, learner_cpu_s, replay_ratio) = learner_thread.finish()?;
+    let stop_reason = outcome?;
     // The run stopped right after an evaluation of the actor's weights reached the target; the
     // learner has gone on updating since. Those evaluated weights are the result (the final
     // checkpoint and evaluation), else the final figures could fall below the target that
@@ -468,55 +199,499 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let target_reached = stop_reason == Some(TARGET_REACHED);
     if target_reached {
         learner
-            .load_network_from(&actor_vs)
+            .load_network_from(&run.actor_vs)
             .context("taking the evaluated weights as the result")?;
+    } else {
+        learner.copy_weights_to(&mut run.actor_vs)?;
     }
+    let final_checkpoint = match &opts.run_dir {
+        Some(dir) => {
+            let path = checkpoint_path(dir, run.agent_steps);
+            checkpoint::save(&path, &learner, run.agent_steps, buffer_counters, &extra)?;
+            Some(path)
+        }
+        None => None,
+    };
+    let final_eval = run.final_evaluation(start).await?;
+    run.pool.close().await?;
+    let steps = run.agent_steps - run.start_steps;
     let updates = learner.updates();
-
-    let mut final_checkpoint = None;
-    if let Some(dir) = &opts.run_dir {
-        let path = checkpoint_path(dir, agent_steps);
-        checkpoint::save(&path, &learner, agent_steps, done.buffer_counters, &extra)?;
-        final_checkpoint = Some(path);
-    }
-    let mut final_eval = vec![];
-    if opts.evaluate {
-        // The final evaluation uses the learner's newest weights (the evaluated ones when
-        // they reached the target: then the actor holds them already).
-        if !target_reached {
-            learner.copy_weights_to(&mut actor_vs)?;
-        }
-        let mut s = Scalars::new();
-        for mut ev in evaluators {
-            let r = ev.run(&model).await?;
-            record_eval(&mut s, &r);
-            curve.push(CurvePoint::of(
-                &r,
-                agent_steps,
-                start.elapsed().as_secs_f64(),
-            ));
-            final_eval.push(r);
-            ev.close().await?;
-        }
-        if let Some(w) = metrics.as_mut() {
-            w.write(agent_steps, &s)?;
-        }
-    }
-    pool.close().await?;
-    let steps = agent_steps - start_steps;
     Ok(TrainSummary {
-        agent_steps,
+        agent_steps: run.agent_steps,
         updates,
         wall_s,
         agent_steps_per_s: steps as f64 / wall_s.max(1e-9),
         updates_per_s: (updates - start_updates) as f64 / wall_s.max(1e-9),
         actor_cpu_s,
-        learner_cpu_s: progress.cpu_seconds,
-        replay_ratio: progress.replay_ratio,
-        curve,
+        learner_cpu_s,
+        replay_ratio,
+        curve: run.curve,
         final_eval,
         final_checkpoint,
     })
+}
+
+/// The env servers of the run: the given ones, or `runtime.env_servers` started here.
+async fn env_servers(opts: &TrainOptions) -> anyhow::Result<(Vec<SupervisedServer>, Vec<String>)> {
+    if !opts.servers.is_empty() {
+        return Ok((vec![], opts.servers.clone()));
+    }
+    let cfg = &opts.config;
+    let local = start_local_servers(cfg.runtime.env_servers, &cfg.runtime.env_server_args).await?;
+    let addrs = local.iter().map(|s| s.addr().to_owned()).collect();
+    Ok((local, addrs))
+}
+
+/// A new learner, or (`--resume`) the newest checkpoint's with its step and buffer counters.
+/// The buffer's segments are not checkpointed: a resumed run refills it.
+fn new_or_resumed_learner(opts: &TrainOptions) -> anyhow::Result<(Learner, SegmentBuffer, u64)> {
+    let agent_cfg = opts.config.agent();
+    let mut learner = Learner::new(agent_cfg.clone(), opts.config.runtime.device());
+    let mut buffer = SegmentBuffer::new(&agent_cfg.buffer);
+    if !opts.resume {
+        return Ok((learner, buffer, 0));
+    }
+    let dir = opts
+        .run_dir
+        .as_ref()
+        .context("--resume needs a run directory")?;
+    let path = latest_checkpoint(dir)?;
+    let meta = checkpoint::load(&path, &mut learner)
+        .with_context(|| format!("resuming from {}", path.display()))?;
+    buffer.restore_counters(meta.counters.buffer);
+    let agent_steps = meta.counters.agent_steps;
+    tracing::info!(checkpoint = %path.display(), agent_steps, updates = learner.updates(), "resumed");
+    Ok((learner, buffer, agent_steps))
+}
+
+/// The training env pool; env i is seeded with `env.seed + i`, shifted by the steps already
+/// taken when a run resumes.
+async fn connect_pool(
+    cfg: &RunConfig,
+    servers: &[String],
+    client: &million_env::ClientConfig,
+    agent_steps: u64,
+) -> anyhow::Result<EnvPool> {
+    let mut pool_cfg = PoolConfig::new(servers.to_vec(), cfg.env.id.clone(), cfg.env.num_envs);
+    pool_cfg.kwargs = cfg.env_kwargs()?;
+    pool_cfg.groups = cfg.env.groups;
+    pool_cfg.seed = Some(cfg.env.seed.wrapping_add(agent_steps));
+    pool_cfg.autoreset = AutoresetMode::SameStep;
+    pool_cfg.client = client.clone();
+    EnvPool::connect(pool_cfg)
+        .await
+        .with_context(|| format!("env pool for {} on {}", cfg.env.id, servers.join(", ")))
+}
+
+async fn connect_evaluators(
+    cfg: &RunConfig,
+    servers: &[String],
+    client: &million_env::ClientConfig,
+) -> anyhow::Result<Vec<Evaluator>> {
+    let mut evaluators = vec![];
+    for split in cfg.eval_splits()? {
+        evaluators.push(
+            Evaluator::connect(
+                servers,
+                split,
+                cfg.eval.episodes,
+                &cfg.eval.first_trial_within,
+                cfg.eval.seed,
+                client.clone(),
+                cfg.model.action_dim,
+            )
+            .await?,
+        );
+    }
+    Ok(evaluators)
+}
+
+/// Creates the run folder (config.toml, checkpoints/) and its metrics files.
+fn open_run_dir(opts: &TrainOptions) -> anyhow::Result<Option<MetricsWriter>> {
+    let Some(dir) = &opts.run_dir else {
+        return Ok(None);
+    };
+    std::fs::create_dir_all(dir.join("checkpoints"))
+        .with_context(|| format!("creating {}", dir.display()))?;
+    std::fs::write(dir.join("config.toml"), toml::to_string(&opts.config)?)?;
+    Ok(Some(MetricsWriter::open(dir)?))
+}
+
+/// The learner thread and the actor's channels to it.
+struct LearnerThread {
+    handle: std::thread::JoinHandle<LearnerThreadResult>,
+    inbox: mpsc::Sender<ToLearner>,
+    link: LearnerLink,
+    stop: Arc<AtomicBool>,
+}
+
+impl LearnerThread {
+    fn spawn(
+        learner: Learner,
+        buffer: SegmentBuffer,
+        cfg: &RunConfig,
+        extra_meta: HashMap<String, String>,
+    ) -> anyhow::Result<Self> {
+        let (inbox, inbox_rx) = mpsc::channel();
+        let (reports_tx, reports) = tokio::sync::mpsc::unbounded_channel();
+        let stop = Arc::new(AtomicBool::new(false));
+        let args = LearnerThreadArgs {
+            learner,
+            buffer,
+            inbox: inbox_rx,
+            reports: reports_tx,
+            stop: stop.clone(),
+            seed: cfg.env.agent_seed,
+            extra_meta,
+        };
+        let handle = std::thread::Builder::new()
+            .name("learner".into())
+            .spawn(move || run_learner(args))
+            .context("starting the learner thread")?;
+        Ok(Self {
+            handle,
+            inbox,
+            link: LearnerLink::new(cfg.buffer.pacing, reports),
+            stop,
+        })
+    }
+
+    fn send(&self, msg: ToLearner) -> anyhow::Result<()> {
+        self.inbox
+            .send(msg)
+            .map_err(|_| anyhow::anyhow!("the learner thread stopped"))
+    }
+
+    /// Stops the thread (lockstep: after it has learned from every batch sent) and returns
+    /// the learner, its buffer counters, its CPU seconds and the replay ratio it reached.
+    fn finish(self) -> anyhow::Result<(Learner, BufferCounters, f64, f64)> {
+        self.stop.store(true, Ordering::Relaxed);
+        drop(self.inbox);
+        let done = self
+            .handle
+            .join()
+            .map_err(|_| anyhow::anyhow!("the learner thread panicked"))?;
+        let mut link = self.link;
+        let p = link.drain_all();
+        Ok((
+            done.learner,
+            done.buffer_counters,
+            p.cpu_seconds,
+            p.replay_ratio,
+        ))
+    }
+}
+
+/// The actor's side of a run: acting on the pool, logs, evaluations, checkpoint requests.
+struct ActorLoop<'a> {
+    opts: &'a TrainOptions,
+    cfg: &'a RunConfig,
+    model: Model,
+    actor_vs: VarStore,
+    pool: EnvPool,
+    evaluators: Vec<Evaluator>,
+    metrics: Option<MetricsWriter>,
+    local_servers: Vec<SupervisedServer>,
+    bar: ProgressBar,
+    agent_steps: u64,
+    start_steps: u64,
+    curve: Vec<CurvePoint>,
+    next_log: u64,
+    next_eval: u64,
+    next_ckpt: u64,
+    window: SuccessTable,
+    returns: EpisodeReturns,
+    trials: TrialTracker,
+    last_log: (Instant, u64, u64),
+    start: Instant,
+    cpu_start: f64,
+}
+
+impl<'a> ActorLoop<'a> {
+    fn new(
+        opts: &'a TrainOptions,
+        model: Model,
+        actor_vs: VarStore,
+        pool: EnvPool,
+        evaluators: Vec<Evaluator>,
+        metrics: Option<MetricsWriter>,
+        agent_steps: u64,
+    ) -> Self {
+        let cfg = &opts.config;
+        let bar = if opts.progress {
+            let bar = ProgressBar::new(cfg.train.total_agent_steps);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps  {msg}  ETA {eta}",
+                )
+                .expect("progress template")
+                .progress_chars("=> "),
+            );
+            bar.set_position(agent_steps);
+            bar
+        } else {
+            ProgressBar::hidden()
+        };
+        let returns = EpisodeReturns::new(pool.num_envs());
+        let trials = TrialTracker::new(pool.num_envs(), &pool.spec().env_id);
+        Self {
+            opts,
+            cfg,
+            model,
+            actor_vs,
+            pool,
+            evaluators,
+            metrics,
+            local_servers: vec![],
+            bar,
+            agent_steps,
+            start_steps: agent_steps,
+            curve: vec![],
+            next_log: next_multiple(agent_steps, cfg.train.log_interval),
+            next_eval: next_multiple(agent_steps, cfg.train.eval_interval),
+            next_ckpt: next_multiple(agent_steps, cfg.train.checkpoint_interval),
+            window: SuccessTable::default(),
+            returns,
+            trials,
+            last_log: (Instant::now(), agent_steps, 0),
+            start: Instant::now(),
+            cpu_start: thread_cpu_seconds(),
+        }
+    }
+
+    /// Acts until a stop rule holds; returns why it stopped. Every group's last actions are
+    /// answered before it returns, so the pool can close cleanly.
+    async fn run(&mut self, learner: &mut LearnerThread) -> anyhow::Result<Option<&'static str>> {
+        let bounds =
+            ActionBounds::from_space(&self.pool.spec().action_space, self.cfg.model.action_dim)?;
+        let mut groups: Vec<GroupActor> = (0..self.pool.num_groups())
+            .map(|g| GroupActor::new(&self.model, &self.pool, g))
+            .collect();
+        for reset in self.pool.reset_all().await? {
+            groups[reset.group].observe_reset(&self.model, &reset.obs)?;
+        }
+        for g in groups.iter_mut() {
+            g.act_and_send(&self.model, &mut self.pool, &bounds, false)?;
+        }
+        let mut stop_reason = None;
+        while stop_reason.is_none() {
+            for gi in 0..groups.len() {
+                if gi == 0 && groups[0].segment_step() == 0 {
+                    let handle = &learner.handle;
+                    learner
+                        .link
+                        .start_round(&mut self.actor_vs, || !handle.is_finished())
+                        .await?;
+                }
+                let step = self.pool.recv(gi).await?;
+                let g = &mut groups[gi];
+                if let Some(batch) = g.observe_step(&self.model, &step, true)? {
+                    learner.send(ToLearner::Segments(batch))?;
+                    learner.link.sent_batch();
+                }
+                for t in self.trials.outcomes(g.offset, &step) {
+                    self.window.record(&t.task, t.success);
+                }
+                self.returns.record(g.offset, &step);
+                self.agent_steps += step.rows() as u64;
+                g.act_and_send(&self.model, &mut self.pool, &bounds, false)?;
+            }
+            self.bar.set_position(self.agent_steps);
+            stop_reason = self.between_steps(learner).await?;
+        }
+        tracing::info!(
+            reason = stop_reason.unwrap_or(""),
+            agent_steps = self.agent_steps,
+            "training stops"
+        );
+        for gi in 0..groups.len() {
+            self.pool.recv(gi).await?;
+        }
+        Ok(stop_reason)
+    }
+
+    /// Logs, evaluations and checkpoints that fall due at the current step; the stop rule
+    /// that holds, if any.
+    async fn between_steps(
+        &mut self,
+        learner: &mut LearnerThread,
+    ) -> anyhow::Result<Option<&'static str>> {
+        let train = &self.cfg.train;
+        let mut stop_reason = None;
+        if self.agent_steps >= self.next_log {
+            self.next_log = next_multiple(self.agent_steps, train.log_interval);
+            let waited = learner.link.waited.as_secs_f64();
+            let progress = learner.link.progress().clone();
+            self.log(&progress, waited)?;
+        }
+        if self.agent_steps >= self.next_eval && !self.evaluators.is_empty() {
+            self.next_eval = next_multiple(self.agent_steps, train.eval_interval);
+            if self.evaluate().await? {
+                stop_reason = Some(TARGET_REACHED);
+            }
+        }
+        if self.agent_steps >= self.next_ckpt {
+            self.next_ckpt = next_multiple(self.agent_steps, train.checkpoint_interval);
+            if let Some(dir) = &self.opts.run_dir {
+                learner.send(ToLearner::Checkpoint {
+                    path: checkpoint_path(dir, self.agent_steps),
+                    agent_steps: self.agent_steps,
+                })?;
+            }
+        }
+        if let Some(e) = learner.link.take_checkpoint_error() {
+            anyhow::bail!("writing a checkpoint: {e}");
+        }
+        if self.agent_steps >= train.total_agent_steps {
+            stop_reason = Some("step budget reached");
+        }
+        let elapsed = self.start.elapsed().as_secs_f64();
+        if self.opts.max_seconds.is_some_and(|m| elapsed >= m) {
+            stop_reason = Some("time limit reached");
+        }
+        if self.opts.interrupt.load(Ordering::Relaxed) {
+            stop_reason = Some("interrupted");
+        }
+        Ok(stop_reason)
+    }
+
+    /// One log record: throughput, the training window's success and returns, and the
+    /// learner's latest update.
+    fn log(&mut self, progress: &LearnerProgress, actor_wait_s: f64) -> anyhow::Result<()> {
+        let dt = self.last_log.0.elapsed().as_secs_f64().max(1e-9);
+        let sps = (self.agent_steps - self.last_log.1) as f64 / dt;
+        let ups = (progress.updates.saturating_sub(self.last_log.2)) as f64 / dt;
+        self.last_log = (Instant::now(), self.agent_steps, progress.updates);
+        let finished = self.returns.take_finished();
+        let mut s = Scalars::new();
+        s.insert("train/agent_steps_per_s".into(), sps);
+        s.insert("train/updates".into(), progress.updates as f64);
+        // Updates refused for a non-finite loss or gradient (nothing was changed).
+        s.insert(
+            "learner/skipped_updates".into(),
+            progress.skipped_updates as f64,
+        );
+        s.insert("train/updates_per_s".into(), ups);
+        s.insert("train/replay_ratio".into(), progress.replay_ratio);
+        s.insert("train/buffer_segments".into(), progress.buffer_len as f64);
+        s.insert("cpu/actor_s".into(), thread_cpu_seconds() - self.cpu_start);
+        // Seconds the actor waited for the learner (lockstep pacing).
+        s.insert("train/actor_wait_s".into(), actor_wait_s);
+        s.insert("cpu/learner_s".into(), progress.cpu_seconds);
+        let restarts: u64 = self
+            .local_servers
+            .iter()
+            .map(SupervisedServer::restarts)
+            .sum();
+        s.insert("env/local_server_restarts".into(), restarts as f64);
+        if self.window.trials() > 0 {
+            s.insert("train/success".into(), self.window.mean());
+        }
+        if self.window.tasks.len() > 1 {
+            for (task, rate) in self.window.per_task() {
+                s.insert(format!("train/task/{task}"), rate);
+            }
+        }
+        if !finished.is_empty() {
+            s.insert(
+                "train/episode_return".into(),
+                finished.iter().sum::<f64>() / finished.len() as f64,
+            );
+        }
+        if let Some(m) = &progress.last {
+            record_update(&mut s, m);
+        }
+        self.bar.set_message(format!(
+            "{sps:.0} steps/s  {ups:.1} upd/s  train success {:.2}",
+            self.window.mean()
+        ));
+        tracing::debug!(agent_steps = self.agent_steps, ?s, "log");
+        self.window = SuccessTable::default();
+        if let Some(w) = self.metrics.as_mut() {
+            w.write(self.agent_steps, &s)?;
+        }
+        Ok(())
+    }
+
+    /// Evaluates every split with the actor's weights; whether the train split reached
+    /// `train.stop_at_success`. A failed evaluation (its env servers lost on every attempt)
+    /// is skipped, not the end of the run: training has its own pool.
+    async fn evaluate(&mut self) -> anyhow::Result<bool> {
+        let mut s = Scalars::new();
+        let mut reached = false;
+        for ev in self.evaluators.iter_mut() {
+            let r = match ev.run(&self.model).await {
+                Ok(r) => r,
+                Err(e) => {
+                    tracing::warn!("evaluation at {} steps skipped: {e:#}", self.agent_steps);
+                    continue;
+                }
+            };
+            record_eval(&mut s, &r);
+            self.curve.push(CurvePoint::of(
+                &r,
+                self.agent_steps,
+                self.start.elapsed().as_secs_f64(),
+            ));
+            self.bar.println(format!(
+                "eval {} at {} steps: success {:.3} (first trials {:.3})",
+                r.split, self.agent_steps, r.mean, r.first_trial
+            ));
+            reached |= r.split == "train" && r.mean >= self.cfg.train.stop_at_success;
+        }
+        if let Some(w) = self.metrics.as_mut() {
+            w.write(self.agent_steps, &s)?;
+        }
+        Ok(reached)
+    }
+
+    /// Evaluates every split with the actor's weights (the result's) and closes the
+    /// evaluators.
+    async fn final_evaluation(&mut self, start: Instant) -> anyhow::Result<Vec<EvalReport>> {
+        let mut final_eval = vec![];
+        let mut s = Scalars::new();
+        for mut ev in std::mem::take(&mut self.evaluators) {
+            let r = ev.run(&self.model).await?;
+            record_eval(&mut s, &r);
+            self.curve.push(CurvePoint::of(
+                &r,
+                self.agent_steps,
+                start.elapsed().as_secs_f64(),
+            ));
+            final_eval.push(r);
+            ev.close().await?;
+        }
+        if !final_eval.is_empty()
+            && let Some(w) = self.metrics.as_mut()
+        {
+            w.write(self.agent_steps, &s)?;
+        }
+        Ok(final_eval)
+    }
+}
+
+/// The scalars of one learner update: `learner/<name>`, and `learner/<name>/<task id>` for
+/// the per-task maps (task_psi_mass, ...).
+fn record_update(s: &mut Scalars, m: &UpdateMetrics) {
+    let Ok(serde_json::Value::Object(map)) = serde_json::to_value(m) else {
+        return;
+    };
+    for (k, v) in map {
+        match v {
+            serde_json::Value::Object(inner) => {
+                for (id, x) in inner {
+                    if let Some(x) = x.as_f64() {
+                        s.insert(format!("learner/{k}/{id}"), x);
+                    }
+                }
+            }
+            v => {
+                if let Some(x) = v.as_f64() {
+                    s.insert(format!("learner/{k}"), x);
+                }
+            }
+        }
+    }
 }
 
 fn record_eval(s: &mut Scalars, r: &EvalReport) {

@@ -1,48 +1,38 @@
-//! Learner → actor weight hand-over: the learner publishes a deep copy of its variables
-//! (network, Pop-Art layer and statistics) every `T_target` updates; the actor copies the
-//! newest one into its own store at a segment boundary.
+//! Learner → actor weight hand-over: the learner copies its variables (network, Pop-Art
+//! layer and statistics) every `T_target` updates into a snapshot it reports; the actor copies
+//! a snapshot into its own store at a round's start.
 
 use std::collections::HashMap;
-use std::sync::Mutex;
 
 use tch::Tensor;
 use tch::nn::VarStore;
 
-#[derive(Default)]
-pub struct WeightBoard {
-    slot: Mutex<Option<(u64, HashMap<String, Tensor>)>>,
+/// A deep copy of the learner's variables after `version` updates.
+pub struct WeightSnapshot {
+    pub version: u64,
+    weights: HashMap<String, Tensor>,
 }
 
-impl WeightBoard {
-    /// Publishes a copy of `vs` as `version`.
-    pub fn publish(&self, version: u64, vs: &VarStore) {
-        let copy: HashMap<String, Tensor> = tch::no_grad(|| {
+impl WeightSnapshot {
+    pub fn of(version: u64, vs: &VarStore) -> Self {
+        let weights = tch::no_grad(|| {
             vs.variables()
                 .into_iter()
                 .map(|(k, v)| (k, v.detach().copy()))
                 .collect()
         });
-        *self.slot.lock().expect("weight board lock") = Some((version, copy));
+        Self { version, weights }
     }
 
-    /// Copies the newest weights into `actor` when they are newer than `have`; returns the
-    /// version the actor holds afterwards.
-    pub fn refresh(&self, have: u64, actor: &mut VarStore) -> u64 {
-        let guard = self.slot.lock().expect("weight board lock");
-        let Some((version, weights)) = guard.as_ref() else {
-            return have;
-        };
-        if *version <= have {
-            return have;
-        }
+    /// Copies the snapshot into `actor`'s variables of the same names.
+    pub fn apply_to(&self, actor: &mut VarStore) {
         tch::no_grad(|| {
             for (name, mut var) in actor.variables() {
-                if let Some(src) = weights.get(&name) {
+                if let Some(src) = self.weights.get(&name) {
                     var.copy_(&src.to_device(var.device()));
                 }
             }
         });
-        *version
     }
 }
 
