@@ -239,6 +239,38 @@ def test_scripted_reach_succeeds_and_starts_the_next_trial_directly(reach_env: M
     assert info["trial_successes"] == 3
 
 
+@pytest.mark.filterwarnings("ignore:Constant.s. may be too high")
+def test_trial_success_observation_follows_the_success_test(reach_env: MillionEnv) -> None:
+    """Full-length reach trials (the default): `trial_success` is 0 until Meta-World's success
+    test first holds in the trial, then 1 to the trial's end while the hand stays at the goal,
+    0 again at the next trial's first observation; 0 in the instruction phase."""
+    policy = SawyerReachV3Policy()
+    obs, info = reach_env.reset(seed=8)
+    goal = np.asarray(info["goal"])
+    per_trial: list[list[float]] = [[]]
+    done = False
+    while not done:
+        flag = float(obs["trial_success"][0])
+        if info["phase"] == "trial":
+            # A trial's observations, first included; `steps_to_success` runs from -1.
+            assert flag == float(info["steps_to_success"] >= 0 and not info["trial_end"])
+            per_trial[-1].append(flag)
+            state = obs["state"].copy()
+            state[36:39] = goal
+            action = policy.get_action(state)
+        else:
+            assert flag == 0.0
+            action = ZERO
+        obs, _r, done, _tr, info = reach_env.step(action)
+        if info["trial_end"] and not done:
+            per_trial.append([])
+    assert float(obs["trial_success"][0]) == 1.0 and info["success"]
+    assert len(per_trial) == 3
+    for flags in per_trial:
+        first = flags.index(1.0)
+        assert flags[0] == 0.0 and flags[first:] == [1.0] * (len(flags) - first)
+
+
 def scripted_reach_episode(env: MillionEnv, seed: int) -> list[tuple[int, bool, float]]:
     """Meta-World's reach policy for one episode: (agent steps, success, return) per trial."""
     policy = SawyerReachV3Policy()

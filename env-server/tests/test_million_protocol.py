@@ -143,6 +143,78 @@ def test_full_length_trials_keep_a_success_that_was_left_behind() -> None:
     assert records[-1]["info"]["trial_successes"] == 2
 
 
+def trial_success_expected(record: dict[str, Any]) -> float:
+    """What the `trial_success` observation must be, from info alone: 1 in a trial whose
+    success test has held (`steps_to_success` runs from -1 to the step it first held); the
+    step that ends a trial (not the last) shows the next trial's first observation, 0."""
+    info = record["info"]
+    if info["phase"] != "trial":
+        return 0.0
+    if info["trial_end"]:
+        return float(record["terminated"] and info["success"])
+    return float(info["steps_to_success"] >= 0)
+
+
+def test_trial_success_observation_flags_a_trial_that_has_succeeded() -> None:
+    """`end_on_success=False`: the flag is 0 until the trial's success test holds, 1 from
+    the observation of that step on (also after walking away from the goal), 0 again at the
+    next trial's first observation, and 0 throughout instruction phases."""
+    env = make(trials=3, trial_len=25, end_on_success=False)
+    first_flags: list[float] = []
+
+    def policy(obs: dict[str, Any], info: dict[str, Any]) -> np.ndarray:
+        if info["phase"] != "trial" or info["trial"] == 0:
+            return ZERO  # the first trial fails, so an instruction phase follows it
+        if info["steps_in_trial"] == 0:
+            first_flags.append(float(obs["trial_success"][0]))
+        if info["steps_in_trial"] < 12:
+            return walk_to_goal(obs, info)
+        # Away from the goal for the rest of the trial: the flag stays set.
+        action = np.zeros(4, dtype=np.float32)
+        action[:2] = np.clip(-obs["state"][:2] / 0.15, -1.0, 1.0)
+        return action
+
+    records = run_episode(env, policy, seed=1)
+    assert phases(records) == ["instruction", "trial", "instruction", "trial", "trial"]
+    ends = [r["info"]["success"] for r in records if r["info"]["trial_end"]]
+    assert ends == [False, True, True]
+    flags = [float(r["obs"]["trial_success"][0]) for r in records]
+    assert flags == [trial_success_expected(r) for r in records]
+    assert all(r["obs"]["trial_success"].dtype == np.float32 for r in records)
+    # Instruction phases, the failed trial and each trial's first observation show 0.
+    assert all(f == 0.0 for f, r in zip(flags, records, strict=True) if r["info"]["trial"] == 0)
+    assert all(
+        f == 0.0 for f, r in zip(flags, records, strict=True) if r["info"]["phase"] != "trial"
+    )
+    assert first_flags == [0.0, 0.0]
+    # Within the second trial: 0s, then 1s to its end, set at the step that reached the goal.
+    second = [
+        r
+        for r in records
+        if r["info"]["trial"] == 1 and r["info"]["phase"] == "trial" and not r["info"]["trial_end"]
+    ]
+    running = [float(r["obs"]["trial_success"][0]) for r in second]
+    first = running.index(1.0)
+    assert 0 < first and running[first:] == [1.0] * (len(running) - first)
+    assert second[first]["info"]["steps_to_success"] == second[first]["info"]["steps_in_trial"]
+    assert np.linalg.norm(second[-1]["obs"]["state"][:2] - second[-1]["info"]["goal"][:2]) > (
+        SUCCESS_DISTANCE
+    )
+    # The episode's final observation stays in its last, successful trial.
+    assert flags[-1] == 1.0 and records[-1]["terminated"]
+
+
+def test_trial_success_observation_when_trials_end_at_their_success() -> None:
+    """`end_on_success=True` (PointGoal's default): the succeeding step ends the trial and
+    already shows the next trial's first observation (0); only the episode's final
+    observation, still in its successful last trial, shows 1."""
+    env = make(trials=3)
+    records = run_episode(env, walk_to_goal, seed=1)
+    flags = [float(r["obs"]["trial_success"][0]) for r in records]
+    assert flags == [trial_success_expected(r) for r in records]
+    assert flags[:-1] == [0.0] * (len(flags) - 1) and flags[-1] == 1.0
+
+
 @pytest.mark.parametrize("action_repeat", [1, 2])
 def test_steps_to_success_says_how_soon_a_trial_first_succeeded(action_repeat: int) -> None:
     """A full-length trial reports at its end the env step at which its success test first
@@ -219,7 +291,15 @@ def test_observation_layout_and_values_per_phase() -> None:
     env = make()
     records = run_episode(env, stand_still, seed=3)
     space = env.observation_space
-    assert list(space.spaces) == ["state", "word", "time", "phase", "task_id", "prev_reward"]
+    assert list(space.spaces) == [
+        "state",
+        "word",
+        "time",
+        "phase",
+        "trial_success",
+        "task_id",
+        "prev_reward",
+    ]
     table = glove()
     for record in records:
         obs, info = record["obs"], record["info"]
@@ -227,6 +307,8 @@ def test_observation_layout_and_values_per_phase() -> None:
         assert obs["state"].dtype == np.float64 and obs["word"].dtype == np.float32
         assert obs["task_id"] == 0 == info["task_id"]
         assert obs["prev_reward"][0] == 0.0
+        # Standing still never succeeds.
+        assert obs["trial_success"][0] == 0.0
         if info["phase"] == "instruction":
             assert obs["phase"][0] == 1.0 and obs["time"][0] == 0.0
             assert not obs["state"].any()

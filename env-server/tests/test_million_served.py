@@ -52,6 +52,7 @@ def test_spec_declares_the_protocol_layout(stub: env_pb2_grpc.EnvServiceStub) ->
             "word",
             "time",
             "phase",
+            "trial_success",
             "task_id",
             "prev_reward",
         ]
@@ -59,7 +60,9 @@ def test_spec_declares_the_protocol_layout(stub: env_pb2_grpc.EnvServiceStub) ->
         assert list(entries[0].space.box.shape) == [39]
         assert entries[1].space.box.dtype == env_pb2.DTYPE_FLOAT32
         assert list(entries[1].space.box.shape) == [50]
-        assert entries[4].space.discrete.n == 1
+        assert entries[4].space.box.dtype == env_pb2.DTYPE_FLOAT32
+        assert list(entries[4].space.box.shape) == [1]
+        assert entries[5].space.discrete.n == 1
         fields = {f.name: f for f in made.spec.info_fields}
         assert list(fields) == [f.name for f in INFO_FIELDS]
         assert fields["instruction"].dtype == env_pb2.DTYPE_STRING

@@ -38,7 +38,8 @@ def tokenize(sentence: str) -> tuple[str, ...]:
     return tokens
 
 
-def _check_instruction_set(instruction_set: str) -> None:
+def check_instruction_set(instruction_set: Any) -> None:
+    """A ValueError unless `instruction_set` names one of `INSTRUCTION_SETS`."""
     if instruction_set not in INSTRUCTION_SETS:
         raise ValueError(
             f"unknown instruction_set {instruction_set!r}; expected one of {INSTRUCTION_SETS}"
@@ -55,7 +56,7 @@ def _sentence_list(where: str, value: Any) -> tuple[str, ...]:
 
 def metaworld_instructions(instruction_set: str) -> dict[str, tuple[str, ...]]:
     """{task name: sentences} of the chosen set for all 50 Meta-World v3 tasks."""
-    _check_instruction_set(instruction_set)
+    check_instruction_set(instruction_set)
     tasks = read_data_file(METAWORLD_FILE).get("tasks")
     if not isinstance(tasks, dict):
         raise ValueError(f"{METAWORLD_FILE} has no 'tasks' object")
@@ -67,14 +68,20 @@ def metaworld_instructions(instruction_set: str) -> dict[str, tuple[str, ...]]:
     }
 
 
+@functools.cache
+def point_goal_counts() -> tuple[int, ...]:
+    """The goal counts PointGoal has sentences for (`num_goals`), ascending."""
+    goal_names = read_data_file(POINT_GOAL_FILE).get("goal_names", {})
+    return tuple(sorted(int(count) for count in goal_names))
+
+
 def point_goal_instructions(instruction_set: str, num_goals: int) -> dict[str, tuple[str, ...]]:
     """{goal name: sentences} for PointGoal with `num_goals` goals, in goal order."""
-    _check_instruction_set(instruction_set)
+    check_instruction_set(instruction_set)
     data = read_data_file(POINT_GOAL_FILE)
-    names_by_count = data.get("goal_names", {})
-    names = names_by_count.get(str(num_goals))
+    names = data.get("goal_names", {}).get(str(num_goals))
     if names is None:
-        counts = sorted(int(k) for k in names_by_count)
+        counts = list(point_goal_counts())
         raise ValueError(f"num_goals must be one of {counts}, got {num_goals!r}")
     templates = _sentence_list(f"{POINT_GOAL_FILE} {instruction_set}", data.get(instruction_set))
     for template in templates:
@@ -154,11 +161,10 @@ def noise_rows() -> npt.NDArray[np.int64]:
     frequency) that no shipped sentence uses, training or held-out: a word that replaces
     another under `word_noise` never teaches a held-out paraphrase's words."""
     table = glove()
-    goal_counts = [int(count) for count in read_data_file(POINT_GOAL_FILE).get("goal_names", {})]
     used = set()
     for instruction_set in INSTRUCTION_SETS:
         groups = [*metaworld_instructions(instruction_set).values()]
-        for count in goal_counts:
+        for count in point_goal_counts():
             groups.extend(point_goal_instructions(instruction_set, count).values())
         for group in groups:
             for sentence in group:

@@ -13,6 +13,10 @@ Observation timing: the step that ends a trial (not the last) already returns th
 first observation of what follows (a word, or the next trial's reset state), so
 every agent step is a real decision or a real word. The last trial's final step
 returns the trial's final state with `terminated`.
+
+The options (`trials`, `trial_len`, `end_on_success`, the ablations and diagnostics) are
+declared, with their defaults and checks, in `million_env.million.options`; the observation
+keys are described at `observation_space`.
 """
 
 from __future__ import annotations
@@ -33,30 +37,13 @@ from million_env.million.instructions import (
     InstructionEncoder,
     with_word_noise,
 )
+from million_env.million.options import ProtocolOptions
 from million_env.million.task_source import STATE_DIM, SampledTask, TaskSource
 
-TIME_OBS_MODES: tuple[str, ...] = ("trial", "episode")
-#: What `goal_pos` names: the real goal, or (a diagnostic) the real goal reflected through
-#: the centre of the task's goal range, a wrong goal about as far from the centre (on reach
-#: ~19 cm RMS from the real one; ~1 % of goals lie so near the centre that it is within 5 cm).
-INSTRUCTION_GOALS: tuple[str, ...] = ("real", "reflected")
-#: How `goal_pos` writes the goal into the word vector's first three entries: "raw" metres
-#: (the original code), or "range": each coordinate mapped affinely from the task's goal range
-#: to [-1, 1] and clipped there. Reach's goals span only 0.1 to 0.25 m per axis (std 0.03 to
-#: 0.07), against a GloVe entry's std of 0.64; "range" gives them the scale of the words
-#: around them (LEARNING.md, rung 2). Made for reach-like tasks, whose goals are drawn from
-#: the range; an axis narrower than `_POINT_HALF_WIDTH` each side counts as a point and maps
-#: to 0, so sub-centimetre jitter (hand-insert's z, ±1e-4 m) is not blown up to full scale.
-GOAL_ENCODINGS: tuple[str, ...] = ("raw", "range")
+#: `goal_encoding="range"` is made for reach-like tasks, whose goals are drawn from the goal
+#: range; an axis narrower than this each side counts as a point and maps to 0, so
+#: sub-centimetre jitter (hand-insert's z, ±1e-4 m) is not blown up to full scale.
 _POINT_HALF_WIDTH = 0.005
-#: Whether a trial ends at the env step that succeeds. The original code runs every trial
-#: for its full length and records whether it succeeded at any step; ending at success
-#: instead makes Meta-World's dense rewards pay for *not* succeeding: a scripted reach
-#: policy that hovers 12 cm from the goal earns 5,129 per episode (discounted at 0.99:
-#: 1,489) against 948 (620) for one that succeeds at once, since each success cuts its
-#: trial's reward short (LEARNING.md, rung 2). PointGoal's potential-based reward is built
-#: for ending at success, so its ids keep that.
-END_ON_SUCCESS_DEFAULT = False
 #: Where `goal_in_state` writes the real goal: the state's last three entries, where a
 #: goal-observable Meta-World v3 task (MT1) shows it and where ML1/ML10 write zeros.
 GOAL_STATE_SLICE = slice(STATE_DIM - 3, STATE_DIM)
@@ -109,7 +96,23 @@ INFO_FIELDS: tuple[InfoField, ...] = (
 
 
 def observation_space(num_task_ids: int) -> gymnasium.spaces.Dict:
-    """The protocol's observation layout, in this key order for every source."""
+    """The protocol's observation layout, in this key order for every source.
+
+    - ``state``: the MDP's 39 values in trials (PointGoal: x, y, then zeros), zeros in
+      instruction phases.
+    - ``word``: the GloVe vector of the instruction word fed (``goal_pos``: the goal),
+      zeros in trials.
+    - ``time``: the trial's elapsed fraction (0 in instruction phases), or with
+      ``time_obs="episode"`` the episode's.
+    - ``phase``: 1 in instruction phases, 0 in trials.
+    - ``trial_success``: 1 once the trial's success test has held at some env step of the
+      current trial (from the observation after that step on, while the trial goes on);
+      0 before, in instruction phases and at each trial's first observation. The original
+      code's trial flag: a full-length trial (`end_on_success=False`) runs on after its
+      success, and without it the value of a solved trial looks like an unsolved one's.
+    - ``task_id``: the task's index in the source's id range (PointGoal: always 0).
+    - ``prev_reward``: the previous step's reward with ``instructions=False``, else 0.
+    """
     inf = np.inf
     return gymnasium.spaces.Dict(
         [
@@ -117,6 +120,7 @@ def observation_space(num_task_ids: int) -> gymnasium.spaces.Dict:
             ("word", gymnasium.spaces.Box(-inf, inf, shape=(EMBED_DIM,), dtype=np.float32)),
             ("time", gymnasium.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)),
             ("phase", gymnasium.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)),
+            ("trial_success", gymnasium.spaces.Box(0.0, 1.0, shape=(1,), dtype=np.float32)),
             ("task_id", gymnasium.spaces.Discrete(num_task_ids)),
             ("prev_reward", gymnasium.spaces.Box(-inf, inf, shape=(1,), dtype=np.float32)),
         ]
@@ -124,7 +128,8 @@ def observation_space(num_task_ids: int) -> gymnasium.spaces.Dict:
 
 
 class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
-    """MILLION episodes over any `TaskSource` (Meta-World benchmarks, PointGoal).
+    """MILLION episodes over any `TaskSource` (Meta-World benchmarks, PointGoal), run as
+    `options` say (`million_env.million.options`; None: the general defaults).
 
     Info fields are declared in `metadata["info_fields"]` (and `info_fields`) as the
     server's `InfoField` (name, dtype name or "str", shape, description); every reset
@@ -138,48 +143,11 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self,
         source: TaskSource,
         sentences: Mapping[str, Sequence[str]],
-        *,
-        instructions: bool = True,
-        time_obs: str = "trial",
-        action_repeat: int = 2,
-        trials: int = 3,
-        trial_len: int = 200,
-        instruction_goal: str = "real",
-        goal_encoding: str = "raw",
-        goal_in_state: bool = False,
-        end_on_success: bool = END_ON_SUCCESS_DEFAULT,
-        word_noise: float = 0.0,
+        options: ProtocolOptions | None = None,
     ) -> None:
-        if time_obs not in TIME_OBS_MODES:
-            raise ValueError(f"time_obs must be one of {TIME_OBS_MODES}, got {time_obs!r}")
-        if instruction_goal not in INSTRUCTION_GOALS:
-            raise ValueError(
-                f"instruction_goal must be one of {INSTRUCTION_GOALS}, got {instruction_goal!r}"
-            )
-        if goal_encoding not in GOAL_ENCODINGS:
-            raise ValueError(
-                f"goal_encoding must be one of {GOAL_ENCODINGS}, got {goal_encoding!r}"
-            )
-        for name, value in (
-            ("action_repeat", action_repeat),
-            ("trials", trials),
-            ("trial_len", trial_len),
-        ):
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, flag in (
-            ("instructions", instructions),
-            ("goal_in_state", goal_in_state),
-            ("end_on_success", end_on_success),
-        ):
-            if not isinstance(flag, bool):
-                raise ValueError(f"{name} must be a bool, got {flag!r}")
-        if (
-            isinstance(word_noise, bool)
-            or not isinstance(word_noise, (int, float))
-            or not 0.0 <= word_noise < 1.0
-        ):
-            raise ValueError(f"word_noise must be a probability in [0, 1), got {word_noise!r}")
+        # Options are validated when `options` is built; what is checked here needs the source.
+        options = ProtocolOptions() if options is None else options
+        trial_len = options.trial_len
         if trial_len > source.max_steps_per_reset:
             raise ValueError(
                 f"trial_len {trial_len} exceeds the {source.max_steps_per_reset} env steps "
@@ -189,27 +157,28 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         if missing:
             raise ValueError(f"no instruction sentences for tasks {missing}")
 
+        self.options = options
         self._source = source
         self._sentences = {name: tuple(sentences[name]) for name in source.task_names}
         self._encoder = InstructionEncoder()
-        self._instructions = instructions
-        self._reflect_goal = instruction_goal == "reflected"
-        self._goal_in_range = goal_encoding == "range"
-        self._goal_in_state = goal_in_state
-        self._end_on_success = end_on_success
-        self._word_noise = float(word_noise)
-        self._episode_time = time_obs == "episode"
-        self._action_repeat = action_repeat
-        self._trials = trials
+        self._instructions = options.instructions
+        self._reflect_goal = options.instruction_goal == "reflected"
+        self._goal_in_range = options.goal_encoding == "range"
+        self._goal_in_state = options.goal_in_state
+        self._end_on_success = options.end_on_success
+        self._word_noise = float(options.word_noise)
+        self._episode_time = options.time_obs == "episode"
+        self._action_repeat = options.action_repeat
+        self._trials = options.trials
         self._trial_len = trial_len
         self.observation_space = observation_space(source.num_task_ids)
         self.action_space = source.action_space
 
         longest = max(len(s.split()) for group in self._sentences.values() for s in group)
-        agent_steps_per_trial = math.ceil(trial_len / action_repeat)
-        words = longest if instructions else 0
+        agent_steps_per_trial = math.ceil(trial_len / self._action_repeat)
+        words = longest if self._instructions else 0
         #: Upper bound on agent steps per episode; the denominator of episode time.
-        self.max_episode_steps = trials * (words + agent_steps_per_trial)
+        self.max_episode_steps = self._trials * (words + agent_steps_per_trial)
 
         self._task: SampledTask | None = None
         self._state = np.zeros(STATE_DIM, dtype=np.float64)
@@ -412,6 +381,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             state = np.zeros(STATE_DIM, dtype=np.float64)
             word = self._instruction.vectors[self._word_index].copy()
             phase = 1.0
+            trial_success = 0.0
         else:
             state = np.array(self._state, dtype=np.float64)
             if self._goal_in_state:
@@ -419,12 +389,15 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
                 state[GOAL_STATE_SLICE] = self._task.goal()
             word = np.zeros(EMBED_DIM, dtype=np.float32)
             phase = 0.0
+            # Reset with the trial's MDP, so a trial's first observation always shows 0.
+            trial_success = float(self._trial_succeeded)
         prev_reward = 0.0 if self._instructions else self._prev_reward
         return {
             "state": state,
             "word": word,
             "time": np.array([self._time()], dtype=np.float32),
             "phase": np.array([phase], dtype=np.float32),
+            "trial_success": np.array([trial_success], dtype=np.float32),
             "task_id": np.int64(self._task.task_id),
             "prev_reward": np.array([prev_reward], dtype=np.float32),
         }

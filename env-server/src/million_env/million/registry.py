@@ -2,51 +2,29 @@
 
 Each id binds its task source (benchmark and split, or PointGoal) into the entry
 point, so a user cannot re-point `million/ML10-train` at another benchmark; the
-protocol kwargs are registered with their defaults, read from the entry points'
-signatures (one source of truth), so the spec of a made env lists every value.
+protocol options are registered with their defaults and described as
+`million_env.million.options` declares them, so the spec of a made env lists every value.
 """
 
 from __future__ import annotations
 
 import functools
-import inspect
 from collections.abc import Callable
 from typing import Any
 
 import gymnasium
 
 from million_env.million.envs import make_metaworld_million, make_point_goal_million
+from million_env.million.options import METAWORLD, POINT_GOAL, ProtocolOptions, declared_options
 
-_MEANINGS = {
-    "instruction_set": "'train'|'heldout' sentences",
-    "instructions": "False = no instruction phases, previous reward in obs",
-    "time_obs": "'trial'|'episode'",
-    "action_repeat": "env steps per agent step",
-    "trials": "trials per episode",
-    "trial_len": "env steps per trial",
-    "num_goals": "2|4|8",
-    "task": "Meta-World task class",
-    "task_order": "'random'|'cycle' (cycle: task (seed + k) mod n at the k-th episode)",
-    "instruction_goal": "'real'|'reflected' (diagnostic: goal_pos names a wrong goal)",
-    "goal_encoding": "'raw'|'range' (goal_pos in metres, or scaled from the goal range to [-1, 1])",
-    "goal_in_state": "True = diagnostic: the real goal in the trial state's last 3 entries",
-    "end_on_success": "True = a trial ends at its success (Meta-World default: full length)",
-    "word_noise": "p: each instruction word but goal_pos replaced by a random unused word",
-    "object_position": "'task'|'centre' (reach-v3 only: its puck at one place for every goal)",
-}
-
-
-def keyword_defaults(entry: Callable[..., Any]) -> dict[str, Any]:
-    """The keyword-only parameters of an entry point with their defaults."""
-    return {
-        name: parameter.default
-        for name, parameter in inspect.signature(entry).parameters.items()
-        if parameter.kind is inspect.Parameter.KEYWORD_ONLY
-    }
+# `task` picks ML1's class; it is a parameter of the id, not a protocol option.
+_TASK_MEANING = "Meta-World task class"
 
 
 def _describe(what: str, kwargs: dict[str, Any]) -> str:
-    listed = ", ".join(f"{k}={v!r} ({_MEANINGS.get(k, '')})" for k, v in kwargs.items())
+    meanings = {option.name: option.describe() for option in declared_options()}
+    meanings["task"] = _TASK_MEANING
+    listed = ", ".join(f"{k}={v!r} ({meanings[k]})" for k, v in kwargs.items())
     return f"MILLION protocol over {what}; kwargs: {listed}"
 
 
@@ -54,11 +32,7 @@ def _entries() -> list[tuple[str, Callable[..., Any], dict[str, Any], str]]:
     entries = []
     # `task` names the ML1 class; the other benchmarks take none, but may take `tasks`, a
     # subset of their split (both default to None, which a Value cannot hold: not listed).
-    protocol = {
-        k: v
-        for k, v in keyword_defaults(make_metaworld_million).items()
-        if k not in ("task", "tasks")
-    }
+    protocol = ProtocolOptions.defaults(METAWORLD)
     for benchmark in ("ML1", "ML10", "ML45"):
         for split in ("train", "test"):
             kwargs = dict(protocol)
@@ -70,7 +44,7 @@ def _entries() -> list[tuple[str, Callable[..., Any], dict[str, Any], str]]:
                 what += " (kwarg tasks: a list naming a subset of them)"
             entry = functools.partial(make_metaworld_million, benchmark, split)
             entries.append((f"million/{benchmark}-{split}", entry, kwargs, _describe(what, kwargs)))
-    point = keyword_defaults(make_point_goal_million)
+    point = ProtocolOptions.defaults(POINT_GOAL)
     entries.append(
         (
             "million/PointGoal",
