@@ -1,5 +1,5 @@
 //! One V-MPO update: forward the sampled segments from their stored memory, n-step returns,
-//! Pop-Art update, the V-MPO losses of ALGORITHM.md §4, one Adam step over everything.
+//! Pop-Art update, the V-MPO losses of docs/ALGORITHM.md §4, one Adam step over everything.
 
 use std::collections::BTreeMap;
 

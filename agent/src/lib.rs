@@ -1,5 +1,5 @@
 //! The MILLION agent: GTrXL memory, Gaussian policy, Pop-Art values, V-MPO with a FIFO
-//! segment buffer (ALGORITHM.md §2–§6).
+//! segment buffer (docs/ALGORITHM.md §2–§6).
 //!
 //! How the pieces fit (one actor thread, one learner thread, `runtime.intra_op_threads` = 1):
 //! - [`config::AgentConfig`]: every hyperparameter, paper defaults, unknown keys rejected;

@@ -1,4 +1,4 @@
-//! V-MPO with Pop-Art targets and the FIFO segment buffer (ALGORITHM.md §3–§5).
+//! V-MPO with Pop-Art targets and the FIFO segment buffer (docs/ALGORITHM.md §3–§5).
 
 pub mod buffer;
 pub mod returns;

@@ -1,4 +1,4 @@
-//! n-step bootstrapped returns over a segment (ALGORITHM.md §4.1, no GAE), or λ-returns.
+//! n-step bootstrapped returns over a segment (docs/ALGORITHM.md §4.1, no GAE), or λ-returns.
 //!
 //! With λ = 1 (the original) G_t = r_t + γ G_{t+1}: every target sums the rewards up to the
 //! segment's end. With λ < 1, G_t = r_t + γ [(1 − λ) V(s_{t+1}) + λ G_{t+1}] (the λ-return,

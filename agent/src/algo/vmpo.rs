@@ -1,4 +1,4 @@
-//! The V-MPO loss terms for a diagonal Gaussian policy (ALGORITHM.md §4.3–§4.7).
+//! The V-MPO loss terms for a diagonal Gaussian policy (docs/ALGORITHM.md §4.3–§4.7).
 
 use tch::{Kind, Tensor};
 

@@ -1,4 +1,4 @@
-//! The Gated Transformer-XL core (ALGORITHM.md §2): pre-LayerNorm layers with GRU-type gates,
+//! The Gated Transformer-XL core (docs/ALGORITHM.md §2): pre-LayerNorm layers with GRU-type gates,
 //! causal attention over `[sg(memory); segment]` with a learned relative-position bias per
 //! head, and a per-layer memory of the previous segment's normalised layer inputs.
 //!

@@ -1,6 +1,6 @@
 //! The MILLION network: observation token → [running normalisation, `model.obs_norm`] →
 //! LayerNorm → Linear [+ the instruction slots' pooling, `model.instruction_words`] → GTrXL →
-//! policy head and Pop-Art value head (ALGORITHM.md §2).
+//! policy head and Pop-Art value head (docs/ALGORITHM.md §2).
 
 pub mod acting;
 pub mod gtrxl;

@@ -1,4 +1,4 @@
-//! Multi-task Pop-Art value output (ALGORITHM.md §3): one normalised output row per task id
+//! Multi-task Pop-Art value output (docs/ALGORITHM.md §3): one normalised output row per task id
 //! with its own running mean μ_k and scale σ_k. The statistics are kept in f64 because
 //! ν − μ² cancels badly in f32 for returns in the hundreds.
 

@@ -1,4 +1,4 @@
-//! Reference results of MILLION (ALGORITHM.md §7), drawn on the curves of ML10/ML45 runs.
+//! Reference results of MILLION (docs/ALGORITHM.md §7), drawn on the curves of ML10/ML45 runs.
 
 /// A published final result (no step count given): drawn as a horizontal line.
 #[derive(Debug, Clone, Copy, PartialEq)]
