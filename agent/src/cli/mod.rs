@@ -1,10 +1,11 @@
-//! The `million` command line: `train`, `eval`, `report`, `bench`, `env-check`.
+//! The `million` command line: `train`, `eval`, `report`, `bench`, `env-check`, `config`.
 
 mod access;
 mod bench;
 mod bench_env;
 mod bench_learning;
 mod bench_reference;
+mod config;
 mod env_check;
 mod eval;
 mod report;
@@ -34,6 +35,8 @@ pub enum Command {
     Bench(bench::BenchCommand),
     /// Check env servers against the API contract (exit code 1 on a failure).
     EnvCheck(env_check::EnvCheckArgs),
+    /// Print the config a file resolves to (its `base =` chain and the defaults applied).
+    Config(config::ConfigArgs),
 }
 
 /// Logs to stderr, filtered by RUST_LOG (default: info).
@@ -61,5 +64,6 @@ pub fn run(cli: Cli) -> anyhow::Result<ExitCode> {
         Command::Report(a) => report::run(a),
         Command::Bench(b) => bench::run(b),
         Command::EnvCheck(a) => env_check::run(a),
+        Command::Config(a) => config::run(a),
     }
 }
