@@ -49,7 +49,7 @@ build: setup
 test: build test-python test-rust
 
 test-python: setup
-	$(PYTHON) -m pytest -q env-server/tests tests/contract tests/deploy
+	$(PYTHON) -m pytest -q env-server/tests tests/contract tests/deploy tests/lint
 
 test-rust: build
 	cargo nextest run --cargo-profile $(CARGO_PROFILE) --workspace --no-fail-fast
@@ -63,8 +63,11 @@ test-docker: build
 lint: setup
 	$(PYTHON) -m ruff check env-server tests docker
 	$(PYTHON) -m ruff format --check env-server tests docker
+	$(PYTHON) -m ruff check tools/lint_vocabulary.py
+	$(PYTHON) -m ruff format --check tools/lint_vocabulary.py
 	cargo fmt --all --check
 	cargo clippy --profile $(CARGO_PROFILE) --workspace --all-targets -- -D warnings
+	$(PYTHON) tools/lint_vocabulary.py
 
 serve: setup
 	$(VENV)/bin/million-env-server --address $(ADDRESS)
@@ -72,7 +75,7 @@ serve: setup
 train: build
 	target/$(CARGO_PROFILE)/million train --config $(CONFIG)
 
-## Learning tools (tools/*.py: the PPO yardstick, curve plots); see LEARNING.md.
+## Learning tools (tools/*.py: the PPO yardstick, curve plots); see RESULTS.md.
 tools: setup
 	$(PYTHON) -m pip install --quiet --disable-pip-version-check -r requirements/tools.lock
 

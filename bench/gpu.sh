@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The GPU benchmarks (issue 9): the learner on CUDA (alone, and against the PyTorch
+# The GPU benchmarks: the learner on CUDA (alone, and against the PyTorch
 # reference on the same GPU) and ML10 end to end with one env server per core and the
 # learner and actor on the GPU. Needs an NVIDIA GPU and driver; nothing else in the project
 # depends on this script.

@@ -5,7 +5,7 @@ Each run is `NAME=RUN_DIR` (or just RUN_DIR, named by its folder). Every key giv
 
 Usage:
   .venv/bin/python tools/plot_curves.py runs/a NAME=runs/b --key eval/train/success \
-      --key eval/train/first_trial_success --out docs/learning/rung0.png
+      --key eval/train/first_trial_success --out docs/figures/mt1-reach.png
 """
 
 from __future__ import annotations

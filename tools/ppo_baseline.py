@@ -1,4 +1,4 @@
-"""PPO yardstick for ladder rung 0: Stable-Baselines3 PPO on Meta-World's own MT1 task.
+"""PPO yardstick for MT1 reach: Stable-Baselines3 PPO on Meta-World's own MT1 task.
 
 The same env as `configs/ladder/0-mt1-reach.toml` (goal visible, 500-step episodes),
 stepped in-process. Writes `RUN_DIR/metrics.jsonl` with the keys `million train` uses, so

@@ -1,4 +1,4 @@
-"""The random policy's success on a MILLION env: the floor every ladder rung must beat.
+"""The random policy's success on a MILLION env: the floor every learned task must beat.
 
 Uniform random actions in [-1, 1] on `million/<id>` stepped in-process, episodes spread
 evenly over the split's tasks (`task_order = "cycle"`, as `million train` evaluates), and

@@ -8,7 +8,8 @@ trials that end at their success (`end_on_success=True`, the protocol before) an
 with full-length trials (the original code and now the default). Prints each policy's
 mean episode return, discounted return (gamma 0.99 per agent step, from the episode's
 start), successful trials out of 3 and agent steps. If hovering earns more than
-succeeding, a return-maximising agent learns not to succeed (LEARNING.md, rung 2).
+succeeding, a return-maximising agent learns not to succeed
+(docs/experiments/2026-12-01-full-length-trials.md).
 """
 
 from __future__ import annotations

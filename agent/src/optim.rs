@@ -118,7 +118,7 @@ impl Adam {
                 }
                 self.apply(&g);
             } else {
-                // A variable outside the loss (none in the agent today): step the others,
+                // A variable outside the loss (the agent has none): step the others,
                 // one variable at a time (the old cost: a host read per variable).
                 if !self.warned_missing_grad {
                     self.warned_missing_grad = true;

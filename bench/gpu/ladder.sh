@@ -1,10 +1,10 @@
 #!/usr/bin/env bash
-# Ladder rung 2 on one GPU machine: ML1 reach with and without instructions, two seeds each,
+# ML1 reach on one GPU machine, with and without instructions, two seeds each,
 # four runs side by side (2 env servers each; learners and actors share the GPU), stopped
 # after SECONDS with SIGINT so that each ends with its final evaluation and checkpoint (only
 # the agent gets the signal: it ends its env servers itself).
 #   bash bench/gpu/ladder.sh [OUT_DIR] [SECONDS]   # OUT_DIR/<arm>-seed<N>.jsonl: metrics
-# Curves: tools/plot_curves.py on the metrics files (LEARNING.md).
+# Curves: tools/plot_curves.py on the metrics files (RESULTS.md).
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 out="${1:-runs/gpu-ladder}"

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Ladder rung 4 (ML10) on one GPU machine for SECONDS, then SIGINT (final evaluation and
+# ML10 (configs/gpu/4-ml10.toml) on one GPU machine for SECONDS, then SIGINT (final evaluation and
 # checkpoint). Only the agent gets the signal; it ends its env servers itself.
 #   bash bench/gpu/ml10.sh [OUT_DIR] [SECONDS]   # OUT_DIR/4-ml10.jsonl: metrics
 set -euo pipefail

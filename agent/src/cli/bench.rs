@@ -30,7 +30,7 @@ pub enum BenchCommand {
     /// Env steps/s served through the API against the same envs stepped in-process.
     Env(super::bench_env::EnvBench),
     /// Whether a config learns to its success targets within a wall-clock budget, and its
-    /// first-trial gap to an ablation at the same agent steps (the ladder's targets).
+    /// first-trial gap to an ablation at the same agent steps (RESULTS.md's targets).
     Learning(super::bench_learning::LearningBench),
 }
 

@@ -1,8 +1,8 @@
 //! `million bench learning`: does a config learn to its targets within a wall-clock budget?
 //!
-//! The learning targets of the ladder (e.g. ML1-reach: train success ≥ 0.9 and held-out
+//! The learning targets (RESULTS.md; e.g. ML1-reach: train success ≥ 0.9 and held-out
 //! success ≥ 0.8 within 60 minutes, first trials ≥ 0.3 above the no-instructions ablation)
-//! take longer than CI allows, so they are a bench that is run and recorded (LEARNING.md), not
+//! take longer than CI allows, so they are a bench that is run and recorded (RESULTS.md), not
 //! a test. It trains the config for at most `--minutes` (local env servers, deterministic
 //! evaluations at the config's `eval_interval` and at the end), then, with `--ablation`, the
 //! ablation config for the same agent steps, evaluated at the same steps. It reports when each

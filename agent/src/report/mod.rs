@@ -3,7 +3,7 @@
 //! Written to the output directory:
 //! - `curves.png`: deterministic-evaluation success and first-trial success against agent
 //!   steps, one row per split, every run overlaid (and, for ML10/ML45 runs, the reference
-//!   results of ALGORITHM.md §7);
+//!   results of docs/ALGORITHM.md §7);
 //! - `tasks-<run>.png`: per-task success of each run's final evaluation, one panel per split;
 //! - `report.md`: a summary table, the figures, and the per-task values.
 //!

@@ -66,7 +66,7 @@ impl RunData {
 
     /// Mean success (or first-trial success) over a split's last `k` evaluations, with the
     /// number of evaluations it averages. Deterministic evaluations of one run swing by
-    /// ±0.2–0.4 between checkpoints (LEARNING.md), so a single last point is a poor summary.
+    /// ±0.2–0.4 between checkpoints (docs/experiments/), so one last point is a poor summary.
     pub fn recent_mean(&self, split: &str, k: usize, first_trial: bool) -> Option<(f64, usize)> {
         let points = self.curves.get(split)?;
         let values: Vec<f64> = points
