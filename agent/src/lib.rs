@@ -13,8 +13,10 @@
 //!   [`algo::rollout::StepRecord`] per step with the observation it led to
 //!   ([`algo::rollout::NextObservation`]); every T steps it yields a
 //!   [`algo::buffer::SegmentBatch`] for [`algo::buffer::SegmentBuffer::push_batch`].
-//! - Learning: `SegmentBuffer::sample` (throttled by the replay ratio) → `Learner::update`.
-//! - [`checkpoint::save`] / [`checkpoint::load`]: one atomic safetensors file.
+//! - Learning: `SegmentBuffer::sample` (throttled by the replay ratio) → `Learner::update`;
+//!   [`train::learner_loop`] paces it against the actors (`buffer.pacing`).
+//! - [`checkpoint::save`] / [`checkpoint::load`]: one atomic safetensors file;
+//!   [`run_dir`]: the run folder's layout and metric names.
 //! - Looking at a run: [`report`] (figures and report.md from run directories), [`video`]
 //!   (GIFs of deterministic episodes, frames from the env server's `Render`).
 pub use million_env as env;
@@ -31,5 +33,6 @@ pub mod optim;
 pub mod procstat;
 pub mod report;
 pub mod run_config;
+pub mod run_dir;
 pub mod train;
 pub mod video;

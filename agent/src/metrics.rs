@@ -18,12 +18,6 @@ use prost::Message;
 /// Named scalar values recorded at one agent step.
 pub type Scalars = BTreeMap<String, f64>;
 
-/// Whether a logged metric measures the machine (rates, CPU and wait times) rather than the
-/// run: everything else is the same for two lockstep runs of one config and seed.
-pub fn depends_on_the_machine(name: &str) -> bool {
-    name.ends_with("_per_s") || name.starts_with("cpu/") || name.ends_with("_wait_s")
-}
-
 /// Writes every record to both `metrics.jsonl` and a TensorBoard event file.
 pub struct MetricsWriter {
     jsonl: BufWriter<File>,
@@ -35,7 +29,7 @@ impl MetricsWriter {
     pub fn open(run_dir: &Path) -> Result<Self> {
         std::fs::create_dir_all(run_dir)
             .with_context(|| format!("cannot create run directory {}", run_dir.display()))?;
-        let jsonl_path = run_dir.join("metrics.jsonl");
+        let jsonl_path = run_dir.join(crate::run_dir::METRICS_FILE);
         let jsonl = OpenOptions::new()
             .create(true)
             .append(true)
@@ -51,8 +45,8 @@ impl MetricsWriter {
     /// TensorBoard but written as `null` in JSON, which has no NaN.
     pub fn write(&mut self, step: u64, scalars: &Scalars) -> Result<()> {
         let mut record = serde_json::Map::new();
-        record.insert("step".into(), step.into());
-        record.insert("wall_time".into(), wall_time().into());
+        record.insert(crate::run_dir::STEP_KEY.into(), step.into());
+        record.insert(crate::run_dir::WALL_TIME_KEY.into(), wall_time().into());
         for (name, value) in scalars {
             let json =
                 serde_json::Number::from_f64(*value).map_or(serde_json::Value::Null, Into::into);

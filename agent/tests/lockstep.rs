@@ -8,8 +8,8 @@ use std::path::Path;
 
 use common::{metrics_records, shipped_config, train_in};
 use million::config::Pacing;
-use million::metrics::depends_on_the_machine;
 use million::run_config::RunConfig;
+use million::run_dir::depends_on_the_machine;
 
 /// The quickstart, shortened: `steps` agent steps, logged every 1,024, evaluated every 4,096.
 fn quickstart(steps: u64) -> RunConfig {

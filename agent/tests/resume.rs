@@ -9,7 +9,7 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use million::checkpoint;
-use million::train::session::latest_checkpoint;
+use million::run_dir::latest_checkpoint;
 use million_env::{LocalServer, LocalServerOptions, default_server_binary};
 
 const WAIT: Duration = Duration::from_secs(60);

@@ -10,9 +10,10 @@ use crate::cli::access::EnvAccessArgs;
 use crate::learner::Learner;
 use crate::model::Model;
 use crate::run_config::RunConfig;
+use crate::run_dir::latest_checkpoint;
 use crate::train::eval::{EvalReport, Evaluator};
 use crate::train::servers::{client_config, start_local_servers};
-use crate::train::session::{RUN_CONFIG_KEY, latest_checkpoint};
+use crate::train::session::RUN_CONFIG_KEY;
 use crate::video::{VideoOptions, record_split};
 
 #[derive(Debug, Clone, Copy, ValueEnum)]

@@ -8,6 +8,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 
+use crate::run_dir;
+
 /// One point of a split's learning curve (a deterministic evaluation).
 #[derive(Debug, Clone, PartialEq)]
 pub struct CurvePoint {
@@ -114,15 +116,14 @@ fn number(record: &serde_json::Map<String, serde_json::Value>, key: &str) -> Opt
 fn eval_splits(record: &serde_json::Map<String, serde_json::Value>) -> Vec<String> {
     record
         .keys()
-        .filter_map(|k| k.strip_prefix("eval/")?.strip_suffix("/success"))
-        .filter(|s| !s.contains('/'))
+        .filter_map(|k| run_dir::eval::split_of_success(k))
         .map(str::to_owned)
         .collect()
 }
 
 /// Reads a run directory (`metrics.jsonl` required, `config.toml` optional).
 pub fn read_run(dir: &Path) -> anyhow::Result<RunData> {
-    let path = dir.join("metrics.jsonl");
+    let path = dir.join(run_dir::METRICS_FILE);
     let text = std::fs::read_to_string(&path)
         .with_context(|| format!("cannot read {} (is it a run directory?)", path.display()))?;
     let name = dir
@@ -153,22 +154,25 @@ pub fn read_run(dir: &Path) -> anyhow::Result<RunData> {
             run.skipped_lines += 1;
             continue;
         };
-        let Some(step) = record.get("step").and_then(serde_json::Value::as_u64) else {
+        let Some(step) = record
+            .get(run_dir::STEP_KEY)
+            .and_then(serde_json::Value::as_u64)
+        else {
             run.skipped_lines += 1;
             continue;
         };
         records += 1;
         run.last_step = run.last_step.max(step);
-        if let Some(t) = number(&record, "wall_time") {
+        if let Some(t) = number(&record, run_dir::WALL_TIME_KEY) {
             first.get_or_insert((step, t));
             last = Some((step, t));
         }
         for split in eval_splits(&record) {
-            let Some(success) = number(&record, &format!("eval/{split}/success")) else {
+            let Some(success) = number(&record, &run_dir::eval::success(&split)) else {
                 continue; // null: no trials
             };
-            let first_trial = number(&record, &format!("eval/{split}/first_trial_success"));
-            let prefix = format!("eval/{split}/task/");
+            let first_trial = number(&record, &run_dir::eval::first_trial_success(&split));
+            let prefix = run_dir::eval::task_prefix(&split);
             let per_task: BTreeMap<String, f64> = record
                 .iter()
                 .filter_map(|(k, v)| {
@@ -214,7 +218,7 @@ pub fn read_run(dir: &Path) -> anyhow::Result<RunData> {
 /// The env id and the test split's description from `config.toml`, when readable. The file
 /// is read as plain TOML (not as a `RunConfig`), so configs of other versions still work.
 fn read_config(dir: &Path, run: &mut RunData) {
-    let Ok(text) = std::fs::read_to_string(dir.join("config.toml")) else {
+    let Ok(text) = std::fs::read_to_string(dir.join(run_dir::CONFIG_FILE)) else {
         return;
     };
     let Ok(table) = text.parse::<toml::Table>() else {

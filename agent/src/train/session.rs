@@ -3,7 +3,7 @@
 //! logs, evaluation and checkpoints, and a summary at the end.
 
 use std::collections::{BTreeMap, HashMap};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
 use std::time::Instant;
@@ -20,6 +20,7 @@ use crate::learner::{Learner, UpdateMetrics};
 use crate::metrics::{MetricsWriter, Scalars};
 use crate::model::Model;
 use crate::run_config::RunConfig;
+use crate::run_dir::{self, CHECKPOINTS_DIR, CONFIG_FILE, checkpoint_path, latest_checkpoint};
 use crate::train::actor::{ActionBounds, GroupActor};
 use crate::train::eval::{EvalReport, Evaluator};
 use crate::train::learner_loop::{
@@ -111,34 +112,6 @@ pub struct TrainSummary {
     pub curve: Vec<CurvePoint>,
     pub final_eval: Vec<EvalReport>,
     pub final_checkpoint: Option<PathBuf>,
-}
-
-/// `run_dir/checkpoints/step-<agent steps>.safetensors`
-pub fn checkpoint_path(run_dir: &Path, agent_steps: u64) -> PathBuf {
-    run_dir
-        .join("checkpoints")
-        .join(format!("step-{agent_steps:015}.safetensors"))
-}
-
-/// The newest checkpoint of a run directory (or `path` itself when it is a file).
-pub fn latest_checkpoint(path: &Path) -> anyhow::Result<PathBuf> {
-    if path.is_file() {
-        return Ok(path.to_owned());
-    }
-    let dir = path.join("checkpoints");
-    let mut found: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .with_context(|| format!("no checkpoints in {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| {
-            p.file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| n.starts_with("step-") && n.ends_with(".safetensors"))
-        })
-        .collect();
-    found.sort();
-    found
-        .pop()
-        .with_context(|| format!("no checkpoint files in {}", dir.display()))
 }
 
 fn next_multiple(now: u64, every: u64) -> u64 {
@@ -311,9 +284,9 @@ fn open_run_dir(opts: &TrainOptions) -> anyhow::Result<Option<MetricsWriter>> {
     let Some(dir) = &opts.run_dir else {
         return Ok(None);
     };
-    std::fs::create_dir_all(dir.join("checkpoints"))
+    std::fs::create_dir_all(dir.join(CHECKPOINTS_DIR))
         .with_context(|| format!("creating {}", dir.display()))?;
-    std::fs::write(dir.join("config.toml"), toml::to_string(&opts.config)?)?;
+    std::fs::write(dir.join(CONFIG_FILE), toml::to_string(&opts.config)?)?;
     Ok(Some(MetricsWriter::open(dir)?))
 }
 
@@ -695,27 +668,17 @@ fn record_update(s: &mut Scalars, m: &UpdateMetrics) {
 }
 
 fn record_eval(s: &mut Scalars, r: &EvalReport) {
-    s.insert(format!("eval/{}/success", r.split), r.mean);
-    s.insert(
-        format!("eval/{}/first_trial_success", r.split),
-        r.first_trial,
-    );
+    use run_dir::eval;
+    let split = r.split.as_str();
+    s.insert(eval::success(split), r.mean);
+    s.insert(eval::first_trial_success(split), r.first_trial);
     for (k, v) in &r.first_trial_within {
-        s.insert(
-            format!("eval/{}/first_trial_success_within/{k}", r.split),
-            *v,
-        );
+        s.insert(eval::first_trial_success_within(split, *k), *v);
     }
-    s.insert(
-        format!("eval/{}/after_success_trial_success", r.split),
-        r.after_success,
-    );
-    s.insert(
-        format!("eval/{}/after_failure_trial_success", r.split),
-        r.after_failure,
-    );
-    s.insert(format!("eval/{}/episode_return", r.split), r.mean_return);
+    s.insert(eval::after_success_trial_success(split), r.after_success);
+    s.insert(eval::after_failure_trial_success(split), r.after_failure);
+    s.insert(eval::episode_return(split), r.mean_return);
     for (task, v) in &r.per_task {
-        s.insert(format!("eval/{}/task/{task}", r.split), *v);
+        s.insert(format!("{}{task}", eval::task_prefix(split)), *v);
     }
 }
