@@ -1,6 +1,6 @@
 """PPO yardstick for MT1 reach: Stable-Baselines3 PPO on Meta-World's own MT1 task.
 
-The same env as `configs/ladder/0-mt1-reach.toml` (goal visible, 500-step episodes),
+The same env as `configs/mt1-reach.toml` (goal visible, 500-step episodes),
 stepped in-process. Writes `RUN_DIR/metrics.jsonl` with the keys `million train` uses, so
 `tools/plot_curves.py` draws both on one figure:
 

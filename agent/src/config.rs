@@ -71,14 +71,15 @@ pub struct ModelConfig {
     pub min_std: f64,
     /// Observation fields (keys of `observation`) whose features are normalised by their
     /// running mean and variance before the token's LayerNorm (not in the paper; empty = the
-    /// paper). See `model::obs_norm` and LEARNING.md. It applies to the fields, not to the
+    /// paper). See `model::obs_norm` and docs/experiments/2026-11-22-mt1-reach-update-regime.md
+    /// (not adopted there). It applies to the fields, not to the
     /// words kept in the instruction slots.
     pub obs_norm: Vec<String>,
     /// Words of the latest instruction the agent keeps beside every token (0 = the paper: a
     /// word reaches later steps only through the GTrXL memory). With K > 0 the token ends with
     /// K slots of [valid, word…], and the network pools them by attention into its input, so
     /// every trial step has a gradient path to the goal word (not in the paper; see
-    /// `model::instruction` and LEARNING.md).
+    /// `model::instruction` and docs/experiments/2026-12-02-instruction-slots.md).
     pub instruction_words: usize,
 }
 
@@ -212,7 +213,8 @@ pub struct VmpoConfig {
     pub min_multiplier: f64,
     /// ... and to at most this one (not in the paper; the default never binds there). In log
     /// form a violated bound grows a multiplier by a factor every update: without a ceiling
-    /// α_Σ reached 1e23, after which its KL term outweighs every other loss (LEARNING.md).
+    /// α_Σ reached 1e23, after which its KL term outweighs every other loss
+    /// (docs/experiments/2026-11-22-mt1-reach-update-regime.md).
     pub max_multiplier: f64,
     /// Normalised advantages are clipped to ±this.
     pub advantage_clip: f64,
@@ -232,7 +234,8 @@ pub struct VmpoConfig {
     /// network, refreshed every `buffer.target_period` updates, evaluated on the batch). The
     /// FIFO buffer mixes segments of several actor versions, so no policy can be within a
     /// small ε of all their stored distributions at once: with enforced multipliers the
-    /// behaviour form's constraint is infeasible and α grows without bound (LEARNING.md).
+    /// behaviour form's constraint is infeasible and α grows without bound
+    /// (docs/experiments/2026-11-22-mt1-reach-update-regime.md).
     pub kl_reference: KlReference,
     /// λ of the λ-return targets: 1 = the original's n-step returns to the segment's end;
     /// below 1 the advantages become GAE(λ), with less variance from later actions [S].

@@ -162,7 +162,7 @@ fn bench_learning_reports_targets_and_the_ablation_gap() {
         "--config",
         "configs/quickstart.toml",
         "--ablation",
-        "configs/ablations/quickstart-no-instructions.toml",
+        "configs/experiments/quickstart-no-instructions.toml",
         "--minutes",
         "0.33",
         "--train-target",

@@ -29,13 +29,19 @@ fn every_shipped_config_is_valid() {
         .map(|p| p.strip_prefix(configs_dir()).unwrap().display().to_string())
         .collect();
     for required in [
+        "base.toml",
+        "mt1-reach.toml",
+        "ml1-reach.toml",
         "ml10.toml",
         "ml45.toml",
-        "ml1-reach.toml",
         "quickstart.toml",
-        "ablations/no-popart.toml",
-        "ablations/no-instructions.toml",
-        "ablations/full-time-obs.toml",
+        "paper/ml10.toml",
+        "paper/ml45.toml",
+        "paper/ml1-reach.toml",
+        "experiments/ml10-no-popart.toml",
+        "experiments/ml10-no-instructions.toml",
+        "experiments/ml10-full-time-obs.toml",
+        "experiments/quickstart-no-instructions.toml",
     ] {
         assert!(
             names.iter().any(|n| n == required),
@@ -61,20 +67,33 @@ fn every_shipped_config_is_valid() {
 }
 
 #[test]
-fn ml10_holds_the_paper_defaults_and_ablations_differ_where_they_should() {
+fn paper_ml10_holds_the_paper_defaults_and_ablations_differ_where_they_should() {
     let load = |name: &str| RunConfig::from_file(&configs_dir().join(name)).unwrap();
+    let paper = load("paper/ml10.toml");
+    // The paper's values are the defaults, with the original's trial_success flag in the token.
+    let mut expected = million::config::AgentConfig::default();
+    expected.model.observation.push(million::config::ObsField {
+        key: "trial_success".into(),
+        size: 1,
+    });
+    assert_eq!(paper.agent(), expected);
+    assert_eq!(paper.env.id, "million/ML10-train");
+    assert_eq!(paper.train.total_agent_steps, 400_000_000);
+
+    // Each ablation changes its shipped config where it says and nowhere else in the agent.
     let ml10 = load("ml10.toml");
-    assert_eq!(ml10.agent(), million::config::AgentConfig::default());
-    assert_eq!(ml10.env.id, "million/ML10-train");
-    assert_eq!(ml10.train.total_agent_steps, 400_000_000);
-    assert!(!load("ablations/no-popart.toml").popart.enabled);
-    let noi = load("ablations/no-instructions.toml");
+    let no_popart = load("experiments/ml10-no-popart.toml");
+    assert!(ml10.popart.enabled && !no_popart.popart.enabled);
+    let mut agent = no_popart.agent();
+    agent.popart.enabled = true;
+    assert_eq!(agent, ml10.agent());
+    let noi = load("experiments/ml10-no-instructions.toml");
     assert_eq!(
         noi.env_kwargs().unwrap()["instructions"],
         million::env::Value::Bool(false)
     );
     assert_eq!(noi.model.observation.last().unwrap().key, "prev_reward");
-    let ft = load("ablations/full-time-obs.toml");
+    let ft = load("experiments/ml10-full-time-obs.toml");
     assert_eq!(
         ft.env_kwargs().unwrap()["time_obs"],
         million::env::Value::String("episode".into())

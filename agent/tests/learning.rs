@@ -1,6 +1,6 @@
 //! The learning test: `configs/quickstart.toml` (million/PointGoal, 4 goals named only in the
 //! instruction) reaches >= 90% deterministic trial success within 10 minutes on 2 cores, while
-//! the same run without instructions (configs/ablations/quickstart-no-instructions.toml: only
+//! the same run without instructions (configs/experiments/quickstart-no-instructions.toml: only
 //! `instructions = false` differs), given the same number of agent steps, stays near chance on
 //! first trials: the words reach the policy through the memory.
 //!
@@ -74,7 +74,7 @@ fn quickstart_learns_to_follow_instructions_and_the_ablation_does_not() {
     );
     assert_eq!(meta.counters.agent_steps, quick.agent_steps);
 
-    let mut ablation = shipped_config("ablations/quickstart-no-instructions.toml");
+    let mut ablation = shipped_config("experiments/quickstart-no-instructions.toml");
     ablation.train.total_agent_steps = quick.agent_steps;
     ablation.train.eval_interval = 0;
     let blind = run(ablation, &dir.path().join("no-instructions"));

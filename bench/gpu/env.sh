@@ -1,4 +1,4 @@
-# Sourced by the GPU scripts (bench/gpu.sh, bench/gpu/ladder.sh, bench/gpu/ml10.sh) from the
+# Sourced by the GPU scripts (bench/gpu.sh, bench/gpu/ml1-reach.sh, bench/gpu/ml10.sh) from the
 # repository root, on the GPU machine:
 # sets $bin (the agent) and $python (the Python of the bench's reference side) and the
 # environment the agent's local env servers need. On an offline GPU machine it uses what

@@ -27,11 +27,12 @@ const SAME_STEPS_FRACTION: u64 = 20;
 
 #[derive(Debug, Args)]
 pub struct LearningBench {
-    /// Run config to train, e.g. configs/ladder/2-ml1-reach-instruction-slots-range.toml.
+    /// Run config to train, e.g. configs/ml1-reach.toml.
     #[arg(long)]
     pub config: PathBuf,
-    /// The same run without what is tested (e.g. configs/ladder/2-ml1-reach-no-instructions.toml),
-    /// trained for as many agent steps as the config reached.
+    /// The same run without what is tested (e.g.
+    /// configs/experiments/ml1-reach-no-instructions.toml), trained for as many agent steps as
+    /// the config reached.
     #[arg(long)]
     pub ablation: Option<PathBuf>,
     /// Wall-clock budget of the config's training, its periodic evaluations included (the

@@ -14,7 +14,7 @@ pub fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// A config shipped under `configs/`, e.g. `"quickstart.toml"` or `"ablations/…"`.
+/// A config shipped under `configs/`, e.g. `"quickstart.toml"` or `"experiments/…"`.
 pub fn shipped_config(name: &str) -> RunConfig {
     RunConfig::from_file(&repo().join("configs").join(name)).expect("shipped config")
 }

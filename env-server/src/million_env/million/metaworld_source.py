@@ -18,7 +18,8 @@ OBJECT_POSITIONS = ("task", "centre")
 
 #: Classes whose object takes no part in the task, so it can be moved without changing it.
 #: reach-v3 draws its puck's position with the goal in one random vector: on a split's fixed
-#: goals the puck tells a policy which goal it is, without any word (LEARNING.md, rung 2).
+#: goals the puck tells a policy which goal it is, without any word
+#: (docs/experiments/2026-12-04-bench-learning-and-first-trial-budgets.md).
 DISTRACTOR_OBJECT_TASKS = ("reach-v3",)
 
 

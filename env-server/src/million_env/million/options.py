@@ -40,7 +40,7 @@ INSTRUCTION_GOALS: tuple[str, ...] = ("real", "reflected")
 #: (the original code), or "range": each coordinate mapped affinely from the task's goal range
 #: to [-1, 1] and clipped there. Reach's goals span only 0.1 to 0.25 m per axis (std 0.03 to
 #: 0.07), against a GloVe entry's std of 0.64; "range" gives them the scale of the words
-#: around them (LEARNING.md, "The goal word's scale").
+#: around them (docs/experiments/2026-11-23-ml1-reach-goal-word.md, "The goal word's scale").
 GOAL_ENCODINGS: tuple[str, ...] = ("raw", "range")
 
 
@@ -195,8 +195,8 @@ class ProtocolOptions:
     # at any step. Ending at success makes Meta-World's dense rewards pay for *not* succeeding:
     # a scripted reach policy hovering 12 cm from the goal earns 5,129 per episode (discounted
     # at 0.99: 1,489) against 948 (620) for one that succeeds at once, since each success cuts
-    # its trial's reward short (LEARNING.md, "Found wrong: a trial that ended at its success
-    # paid the agent for not succeeding"). PointGoal's potential-based reward is built for it.
+    # its trial's reward short (docs/experiments/2026-12-01-full-length-trials.md). PointGoal's
+    # potential-based reward is built for it.
     end_on_success: bool = _option(
         False,
         BOOL,

@@ -385,7 +385,8 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         else:
             state = np.array(self._state, dtype=np.float64)
             if self._goal_in_state:
-                # Diagnostic: the goal in plain view, as MT1 shows it (LEARNING.md, rung 2).
+                # Diagnostic: the goal in plain view, as MT1 shows it
+                # (docs/experiments/2026-12-02-goal-in-state.md).
                 state[GOAL_STATE_SLICE] = self._task.goal()
             word = np.zeros(EMBED_DIM, dtype=np.float32)
             phase = 0.0

@@ -1,0 +1,84 @@
+"""The evidence standard's statistic over the seeds of one arm (RESULTS.md, "How results are
+measured"): per run, the mean of its last three evaluations of each split; over the runs,
+their mean and range. Stochastic training success (the last three logs' `train/success`)
+is printed beside it.
+
+At a run's last step there are two evaluations, the periodic one (the actors' weights) and
+the final one (the learner's weights after every update); the final one counts, so the last
+three are those of the last three distinct evaluation steps.
+
+Usage: .venv/bin/python tools/seed_summary.py [--metric first_trial_success] RUN_DIR ...
+       (runs of one arm: one config, several seeds; --at STEPS cuts every run there)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+from pathlib import Path
+
+LAST = 3
+
+
+def records(run: Path) -> list[dict[str, float]]:
+    lines = (run / "metrics.jsonl").read_text().splitlines()
+    return [json.loads(line) for line in lines if line.strip()]
+
+
+def evaluations(rows: list[dict[str, float]], key: str, at: int | None) -> list[tuple[int, float]]:
+    """(step, value) of `key`, one per step (the later record wins), up to `at`."""
+    by_step: dict[int, float] = {}
+    for r in rows:
+        step = int(r["step"])
+        if key in r and r[key] is not None and (at is None or step <= at):
+            by_step[step] = float(r[key])
+    return sorted(by_step.items())
+
+
+def last_mean(points: list[tuple[int, float]]) -> tuple[float, list[int]] | None:
+    if len(points) < LAST:
+        return None
+    tail = points[-LAST:]
+    return statistics.fmean(v for _, v in tail), [s for s, _ in tail]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--metric", default="success", help="eval/<split>/<metric>")
+    parser.add_argument("--at", type=int, default=None, help="ignore records after this step")
+    args = parser.parse_args()
+    splits = ("train", "test")
+    per_split: dict[str, list[float]] = {s: [] for s in splits}
+    stochastic: list[float] = []
+    for run in args.runs:
+        rows = records(run)
+        cells = []
+        for split in splits:
+            got = last_mean(evaluations(rows, f"eval/{split}/{args.metric}", args.at))
+            if got is None:
+                continue
+            mean, steps = got
+            per_split[split].append(mean)
+            cells.append(f"{split} {mean:.3f} (steps {', '.join(f'{s:,}' for s in steps)})")
+        train = evaluations(rows, "train/success", args.at)[-LAST:]
+        if train:
+            stochastic.append(statistics.fmean(v for _, v in train))
+            cells.append(f"stochastic train {stochastic[-1]:.3f}")
+        print(f"{run}: " + "; ".join(cells))
+    for split, values in per_split.items():
+        if values:
+            print(
+                f"{split} {args.metric}: mean {statistics.fmean(values):.3f}, "
+                f"range {min(values):.3f}-{max(values):.3f} over {len(values)} runs"
+            )
+    if stochastic:
+        print(
+            f"stochastic train success: mean {statistics.fmean(stochastic):.3f}, "
+            f"range {min(stochastic):.3f}-{max(stochastic):.3f}"
+        )
+
+
+if __name__ == "__main__":
+    main()
