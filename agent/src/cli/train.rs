@@ -28,6 +28,11 @@ pub struct TrainArgs {
     /// replaced; evaluation seeds are kept). Default run directory runs/<config name>-seedN.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Stop this leg of the run at this many agent steps (final checkpoint and evaluation),
+    /// to go on later with --resume. A run cut into legs at the same steps gives the same
+    /// curve again; a run killed mid-leg resumes from its last checkpoint instead.
+    #[arg(long)]
+    pub until: Option<u64>,
     /// Print the summary as JSON on stdout.
     #[arg(long)]
     pub json: bool,
@@ -68,6 +73,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
             env_access,
             run_dir: Some(run_dir.clone()),
             resume: a.resume,
+            until: a.until,
             progress: true,
             interrupt,
             ..TrainOptions::local(config)

@@ -45,6 +45,8 @@ pub struct TrainOptions {
     /// Metrics and checkpoints go here; None = nothing written (benchmarks).
     pub run_dir: Option<PathBuf>,
     pub resume: bool,
+    /// End of this leg in agent steps (the run goes on later with `resume`); None = the budget.
+    pub until: Option<u64>,
     pub progress: bool,
     /// Stop after this much wall time (benchmarks), besides the step budget.
     pub max_seconds: Option<f64>,
@@ -65,6 +67,7 @@ impl TrainOptions {
             env_access: EnvAccess::default(),
             run_dir: None,
             resume: false,
+            until: None,
             progress: false,
             max_seconds: None,
             evaluate: true,
@@ -517,6 +520,8 @@ impl<'a> ActorLoop<'a> {
         }
         if self.agent_steps >= train.total_agent_steps {
             stop_reason = Some("step budget reached");
+        } else if self.opts.until.is_some_and(|u| self.agent_steps >= u) {
+            stop_reason = Some("end of the leg (--until) reached");
         }
         let elapsed = self.start.elapsed().as_secs_f64();
         if self.opts.max_seconds.is_some_and(|m| elapsed >= m) {
