@@ -61,10 +61,8 @@ test-docker: build
 	docker/test-docker.sh target/$(CARGO_PROFILE)/million
 
 lint: setup
-	$(PYTHON) -m ruff check env-server tests docker
-	$(PYTHON) -m ruff format --check env-server tests docker
-	$(PYTHON) -m ruff check tools/lint_vocabulary.py
-	$(PYTHON) -m ruff format --check tools/lint_vocabulary.py
+	$(PYTHON) -m ruff check env-server tests docker bench tools
+	$(PYTHON) -m ruff format --check env-server tests docker bench tools
 	cargo fmt --all --check
 	cargo clippy --profile $(CARGO_PROFILE) --workspace --all-targets -- -D warnings
 	$(PYTHON) tools/lint_vocabulary.py
@@ -74,6 +72,12 @@ serve: setup
 
 train: build
 	target/$(CARGO_PROFILE)/million train --config $(CONFIG)
+
+## Benchmarks (BENCHMARKS.md) through their one entry point, `million bench`:
+## make bench BENCH="env --seconds 5"; without BENCH it lists them.
+BENCH ?= --help
+bench: build
+	target/$(CARGO_PROFILE)/million bench $(BENCH)
 
 ## Learning tools (tools/*.py: the PPO yardstick, curve plots); see RESULTS.md.
 tools: setup

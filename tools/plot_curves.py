@@ -52,7 +52,7 @@ def main() -> None:
     fig, axes = plt.subplots(
         1, len(args.key), figsize=(4.2 * len(args.key), 3.2), squeeze=False, dpi=90
     )
-    for ax, key in zip(axes[0], args.key):
+    for ax, key in zip(axes[0], args.key, strict=True):
         for name, path in runs:
             xs, ys = read_series(path, key, args.wall)
             if xs:

@@ -8,7 +8,8 @@ stepped in-process. Writes `RUN_DIR/metrics.jsonl` with the keys `million train`
   with `success` at any step (Meta-World's criterion; stochastic policy);
 - `eval/train/success`: deterministic episodes (mean action), same criterion.
 
-Usage: .venv/bin/python tools/ppo_baseline.py --task reach-v3 --steps 1000000 --run-dir runs/ppo-reach
+Usage:
+  .venv/bin/python tools/ppo_baseline.py --task reach-v3 --steps 1000000 --run-dir runs/ppo-reach
 """
 
 from __future__ import annotations
@@ -65,7 +66,9 @@ class Recorder(BaseCallback):
         self.start = time.monotonic()
 
     def _on_step(self) -> bool:
-        for i, (info, done) in enumerate(zip(self.locals["infos"], self.locals["dones"])):
+        for i, (info, done) in enumerate(
+            zip(self.locals["infos"], self.locals["dones"], strict=True)
+        ):
             self.seen[i] |= bool(info.get("success", 0.0))
             if done:
                 self.finished.append(bool(self.seen[i]))

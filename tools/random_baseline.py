@@ -17,6 +17,7 @@ from collections import defaultdict
 
 import gymnasium as gym
 import numpy as np
+
 from million_env.million.registry import register_envs
 
 
@@ -34,9 +35,7 @@ def run(env_id: str, kwargs: dict, episodes_per_task: int, seed: int) -> dict:
         task = info["task_name"]
         outcomes: list[bool] = []
         while True:
-            action = rng.uniform(-1.0, 1.0, size=env.action_space.shape).astype(
-                np.float32
-            )
+            action = rng.uniform(-1.0, 1.0, size=env.action_space.shape).astype(np.float32)
             _, _, terminated, truncated, info = env.step(action)
             if info["trial_end"]:
                 outcomes.append(bool(info["success"]))

@@ -21,6 +21,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 from metaworld import policies
+
 from million_env.million import register_envs
 
 TARGETS = {
@@ -36,9 +37,7 @@ def scripted_policy(task: str) -> Any:
     return getattr(policies, name)()
 
 
-def episode(
-    task: str, offset: np.ndarray, seed: int, gamma: float, **kwargs: Any
-) -> np.ndarray:
+def episode(task: str, offset: np.ndarray, seed: int, gamma: float, **kwargs: Any) -> np.ndarray:
     """(return, discounted return, successful trials, agent steps) of one episode."""
     env = gymnasium.make("million/ML1-train", task=task, **kwargs).unwrapped
     policy = scripted_policy(task)

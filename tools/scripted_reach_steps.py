@@ -24,6 +24,7 @@ import gymnasium
 import numpy as np
 import numpy.typing as npt
 from metaworld.policies import SawyerReachV3Policy
+
 from million_env.million import register_envs
 
 BUDGETS = (25, 50, 100, 200)
@@ -55,9 +56,7 @@ def steps_to_success(env: gymnasium.Env[Any, Any], policy: Policy, seed: int) ->
     """One single-trial episode; the env steps its trial took to succeed, -1 if it failed."""
     obs, info = env.reset(seed=seed)
     while True:
-        action = (
-            policy(obs, info) if info["phase"] == "trial" else np.zeros(4, np.float32)
-        )
+        action = policy(obs, info) if info["phase"] == "trial" else np.zeros(4, np.float32)
         obs, _reward, terminated, truncated, info = env.step(action)
         if terminated or truncated:
             return int(info["steps_to_success"])
@@ -83,9 +82,7 @@ def main() -> None:
     for split in ("train", "test"):
         env = gymnasium.make(f"million/ML1-{split}", task="reach-v3", trials=1)
         for name, policy in (("scripted", scripted()), ("random", uniform(0))):
-            hits = [
-                steps_to_success(env, policy, seed) for seed in range(args.episodes)
-            ]
+            hits = [steps_to_success(env, policy, seed) for seed in range(args.episodes)]
             out[f"{split}/{name}"] = summary(hits)
         env.close()
     print(json.dumps(out, indent=2))

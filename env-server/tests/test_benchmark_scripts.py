@@ -1,5 +1,6 @@
-"""A tiny run of the env server's benchmark scripts, so that they keep working; the timing
-itself is never a test (BENCHMARKS.md has the figures)."""
+"""A tiny run of the env server's benchmark scripts (bench/env/, also run as `million bench
+script NAME`), so that they keep working; the timing itself is never a test (BENCHMARKS.md
+has the figures)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+BENCHMARKS = Path(__file__).resolve().parents[2] / "bench" / "env"
 
 
 def run_script(name: str, *args: str) -> dict:
@@ -31,7 +32,7 @@ def test_fast_paths_bench_times_both_codes_per_class() -> None:
 
 
 def test_million_steprate_bench_compares_the_protocol_with_raw_metaworld() -> None:
-    report = run_script("bench_million_steprate.py", "--episodes", "1", "--repeats", "1")
+    report = run_script("million_steprate.py", "--episodes", "1", "--repeats", "1")
     assert report["agent_steps"] > 0 and report["env_steps"] > report["agent_steps"]
     assert report["million_agent_steps_per_s"] > 0 and report["raw_metaworld_env_steps_per_s"] > 0
     assert report["unknown_words"] == 0

@@ -2,9 +2,6 @@
 
 mod access;
 mod bench;
-mod bench_env;
-mod bench_learning;
-mod bench_reference;
 mod config;
 mod env_check;
 mod eval;

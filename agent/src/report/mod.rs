@@ -186,7 +186,7 @@ fn markdown_text(runs: &[RunData], task_figures: &[PathBuf]) -> String {
         };
         let _ = writeln!(
             md,
-            "Reference results for {b} (ALGORITHM.md §7; dashed lines: final results, markers: \
+            "Reference results for {b} (docs/ALGORITHM.md §7; dashed lines: final results, markers: \
              the original code's logged runs):\n"
         );
         let _ = writeln!(

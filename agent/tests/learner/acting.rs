@@ -1,8 +1,6 @@
 //! Incremental acting produces what the learner recomputes from the stored segment.
 
-mod common;
-
-use common::{max_abs_diff, randomise_relative_bias, small_model};
+use crate::common::{max_abs_diff, randomise_relative_bias, small_model};
 use million::algo::rollout::{NextObservation, RolloutCollector, StepRecord};
 use million::config::PopArtConfig;
 use million::model::Model;

@@ -4,12 +4,10 @@
 //! returns, clamp-form multipliers, KL from the behaviour policy) and once with every other
 //! form the config can select. One timed update per side; timings are never asserted.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::repo;
+use crate::common::repo;
 use serde_json::Value;
 
 const TERMS: [&str; 6] = [

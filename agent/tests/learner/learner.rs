@@ -1,10 +1,8 @@
 //! The learner: one update end to end, multipliers, a bandit that must be learnt, checkpoints.
 
-mod common;
-
 use std::collections::HashMap;
 
-use common::small_agent;
+use crate::common::small_agent;
 use million::algo::buffer::{BufferCounters, SegmentBatch};
 use million::checkpoint;
 use million::config::{AgentConfig, KlReference, MultiplierForm};

@@ -1,8 +1,6 @@
 //! The GTrXL model: causality, memory across segments, episode masking, gates at init.
 
-mod common;
-
-use common::{max_abs_diff, random_starts, randomise_relative_bias, small_model};
+use crate::common::{max_abs_diff, random_starts, randomise_relative_bias, small_model};
 use million::config::PopArtConfig;
 use million::model::Model;
 use tch::nn::VarStore;

@@ -1,12 +1,11 @@
-//! Tiny runs of `million bench env|train|learner|acting`, so the benchmarks keep working.
+//! Tiny runs of `million bench env|train|learner|acting|learning|script`, so the benchmarks
+//! keep working.
 //! They check what each reports is there and sane; a timing is never asserted.
-
-mod common;
 
 use std::ffi::OsStr;
 use std::process::{Command, Output};
 
-use common::repo;
+use crate::common::repo;
 use serde_json::Value;
 
 /// `million ARGS` run to its end in the repository, whatever its exit status.
@@ -98,6 +97,38 @@ fn bench_env_compares_served_with_in_process_steps() {
     let latency = &report["latency"];
     assert_eq!(latency["round_trips"], 50);
     assert!(latency["p50_us"].as_f64().unwrap() <= latency["p99_us"].as_f64().unwrap());
+}
+
+/// `bench script` runs a Python benchmark of bench/env/ with the arguments after its name
+/// (hyphens and all) and exits with the script's status.
+#[test]
+fn bench_script_runs_a_python_benchmark_with_its_arguments() {
+    let out = million(&[
+        "bench",
+        "script",
+        "inprocess-rate",
+        "--env",
+        "CartPole-v1",
+        "--batch",
+        "1",
+        "--workers",
+        "1",
+        "--seconds",
+        "0.2",
+    ]);
+    let report: Value = serde_json::from_str(out.trim()).unwrap();
+    assert!(
+        report["env_steps_per_s"].as_f64().unwrap() > 0.0,
+        "{report}"
+    );
+    // argparse refuses an unknown option with status 2.
+    let refused = run_million(["bench", "script", "inprocess-rate", "--no-such-option"]);
+    assert_eq!(
+        refused.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
 }
 
 #[test]

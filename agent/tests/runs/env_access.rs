@@ -1,8 +1,7 @@
 //! `million env-check` through `--env-tls-ca` and the token (flag or
 //! MILLION_ENV_TOKEN) against a server with TLS and a token: the flags reach the
 //! client, a wrong token is refused as UNAUTHENTICATED.
-#[path = "../env-client/tests/common/mod.rs"]
-mod env_common;
+use crate::env_common;
 
 use std::process::Command;
 

@@ -1,24 +1,24 @@
 //! The learning test: `configs/quickstart.toml` (million/PointGoal, 4 goals named only in the
-//! instruction) reaches >= 90% deterministic trial success within 10 minutes on 2 cores, while
+//! instruction) reaches >= 90% deterministic trial success within its agent-step budget, while
 //! the same run without instructions (configs/experiments/quickstart-no-instructions.toml: only
 //! `instructions = false` differs), given the same number of agent steps, stays near chance on
 //! first trials: the words reach the policy through the memory.
 //!
-//! Real parts throughout: a local million-env-server, the gRPC env pool, libtorch.
-//! Runs alone (nextest test group `learning`, max-threads 1) so nothing competes for the CPU.
-
-mod common;
+//! Real parts throughout: a local million-env-server, the gRPC env pool, libtorch. Lockstep
+//! pacing makes the run the same on any machine, so the budget is in agent steps; the wall
+//! time is only a guard against a hung run. Runs alone (nextest test group `learning`).
 
 use std::path::Path;
 
-use common::{shipped_config, train_in};
+use crate::common::{shipped_config, train_in};
 use million::run_config::RunConfig;
 use million::train::session::TrainSummary;
 
-const WALL_BUDGET_S: f64 = 600.0;
+/// A guard against a hung run, far above the ~5 minutes the run takes on 2 idle cores.
+const WALL_GUARD_S: f64 = 3_600.0;
 
 fn run(cfg: RunConfig, run_dir: &Path) -> TrainSummary {
-    train_in(cfg, run_dir, true, WALL_BUDGET_S)
+    train_in(cfg, run_dir, true, WALL_GUARD_S)
 }
 
 fn split<'a>(s: &'a TrainSummary, name: &str) -> &'a million::train::eval::EvalReport {
@@ -48,11 +48,14 @@ fn quickstart_learns_to_follow_instructions_and_the_ablation_does_not() {
     let train_split = split(&quick, "train");
     assert!(
         train_split.mean >= 0.9,
-        "quickstart reached only {:.3} trial success in {:.0} s",
+        "quickstart reached only {:.3} trial success in {} agent steps",
         train_split.mean,
-        quick.wall_s
+        quick.agent_steps
     );
-    assert!(quick.wall_s < WALL_BUDGET_S);
+    assert!(
+        quick.wall_s < WALL_GUARD_S,
+        "the run hit the wall-time guard"
+    );
     assert!(
         train_split.first_trial >= 0.8,
         "first trials follow the words: {:.3}",

@@ -2,11 +2,9 @@
 //! updates the replay ratio allows and the actor waits for it, so a seed's run is the same on
 //! any machine. Real quickstart runs: a local env server, PointGoal, libtorch.
 
-mod common;
-
 use std::path::Path;
 
-use common::{metrics_records, shipped_config, train_in};
+use crate::common::{metrics_records, shipped_config, train_in};
 use million::config::Pacing;
 use million::run_config::RunConfig;
 use million::run_dir::depends_on_the_machine;

@@ -2,11 +2,9 @@
 //! config cut to a few thousand steps) writes every figure, and report.md says what
 //! metrics.jsonl says; synthetic runs check the figures for one task and for ML45's 50.
 
-mod common;
-
 use std::path::{Path, PathBuf};
 
-use common::{metrics_records, shipped_config, train_in};
+use crate::common::{metrics_records, shipped_config, train_in};
 use million::report::write_report;
 
 /// Width and height of a PNG file, from its IHDR chunk.

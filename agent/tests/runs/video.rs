@@ -2,12 +2,10 @@
 //! with the frame count the episode implies (one per word, one per rendered trial step, one
 //! per trial outcome).
 
-mod common;
-
 use std::path::Path;
 use std::time::Instant;
 
-use common::{runtime, shipped_config};
+use crate::common::{runtime, shipped_config};
 use million::model::Model;
 use million::video::{VideoOptions, record_split};
 use million_env::{

@@ -8,7 +8,7 @@ threshold every model is carved from the heap, and a closed env leaves a 21 MB h
 the process keeps: an evicted idle env freed nothing (measured: RSS unchanged after
 closing a reach-v3 env; 20 MB returned with the threshold fixed). ``mallopt`` with an
 explicit threshold turns the adjustment off. Measured on ML10, 32 envs, 16 idle
-(``env-server/benchmarks/server_memory.py``): peak 1,452 MB before, 1,297 MB after.
+(``bench/env/server_memory.py``): peak 1,452 MB before, 1,297 MB after.
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 //! `million env-check` (the conformance library) passes against the bundled
 //! server, for a Box-action env, a Discrete-action env and a Meta-World env.
-mod common;
 
-use common::init_tracing;
+use crate::common;
+
+use crate::common::init_tracing;
 use million_env::conformance::{IMPLEMENTED, Status, listed_checks};
 use million_env::{AutoresetMode, ClientConfig, EnvClient, Kwargs, Space, Value, run_conformance};
 

@@ -4,13 +4,14 @@
 //! a new one under a new address included. Real servers; the name is resolved by a
 //! fake resolver whose answer the test changes, as DNS changes when a replica is
 //! replaced.
-mod common;
+
+use crate::common;
 
 use std::collections::{BTreeSet, HashMap};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use common::init_tracing;
+use crate::common::init_tracing;
 use million_env::{
     ActionSampler, AutoresetMode, EnvPool, PoolConfig, Resolve, ResolveFuture, RetryPolicy,
     StepBatch,

@@ -1,9 +1,10 @@
 //! The pool on a Meta-World task (`Meta-World/MT1`, reach-v3): float64
 //! observations, float32 actions, declared info fields, and the same
 //! trajectories from one server or two.
-mod common;
 
-use common::{Server, init_tracing};
+use crate::common;
+
+use crate::common::{Server, init_tracing};
 use million_env::{
     ActionSampler, DType, EnvPool, FLAT_FIELD, Kwargs, PoolConfig, Space, StepBatch, Value,
 };

@@ -1,11 +1,12 @@
 //! The pool on Pendulum-v1 against the real server: batch shapes with double
 //! buffering, time-limit truncation under SAME_STEP, determinism by seed across
 //! server counts, and clear errors for bad input.
-mod common;
+
+use crate::common;
 
 use std::time::Duration;
 
-use common::{Server, free_port, init_tracing};
+use crate::common::{Server, free_port, init_tracing};
 use million_env::{
     ActionSampler, AutoresetMode, ClientConfig, DType, EnvClient, EnvError, EnvPool, FLAT_FIELD,
     Kwargs, PoolConfig, RetryPolicy, StepBatch, Tensor,

@@ -1,11 +1,12 @@
 //! A server killed and restarted on the same port mid-run: the pool reconnects,
 //! re-makes and resets its envs, and reports the cut episodes as truncated with
 //! their last observation, while envs on the other server carry on untouched.
-mod common;
+
+use crate::common;
 
 use std::time::Duration;
 
-use common::init_tracing;
+use crate::common::init_tracing;
 use million_env::{
     ActionSampler, AutoresetMode, EnvPool, FLAT_FIELD, PoolConfig, RetryPolicy, StepBatch, Tensor,
 };

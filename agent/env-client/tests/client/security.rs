@@ -1,10 +1,9 @@
 //! TLS and the shared token end to end: a real server started with
 //! `--tls-cert/--tls-key` and `MILLION_ENV_TOKEN`, reached by the Rust client.
-mod common;
 
 use std::time::Duration;
 
-use common::{init_tracing, make_certs};
+use crate::common::{init_tracing, make_certs};
 use million_env::{
     ActionSampler, AutoresetMode, ClientConfig, EnvClient, EnvError, EnvPool, LocalServer,
     LocalServerOptions, PoolConfig, RetryPolicy, TOKEN_ENV_VAR, TlsOptions, Token,

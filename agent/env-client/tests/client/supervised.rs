@@ -1,11 +1,10 @@
 //! A supervised local server killed with SIGKILL (as by the OOM killer) comes
 //! back on the same port, and a pool over it goes on: the cut episodes are
 //! reported as truncated, and stepping continues.
-mod common;
 
 use std::time::{Duration, Instant};
 
-use common::init_tracing;
+use crate::common::init_tracing;
 use million_env::{
     ActionSampler, AutoresetMode, EnvPool, LocalServer, LocalServerOptions, PoolConfig,
     RestartPolicy, SupervisedServer, default_server_binary,

@@ -2,7 +2,7 @@
 //!
 //! Served: K local `million-env-server` processes, the Rust pool over them, the batch split in
 //! two groups that alternate (one steps on the servers while the other's reply is read, as in
-//! training), uniform random actions. In-process: `env-server/benchmarks/inprocess_rate.py`,
+//! training), uniform random actions. In-process: `bench/env/inprocess_rate.py`,
 //! K Python processes stepping the same envs in a tight loop. Both run for the same seconds,
 //! one after the other for each (env, K, batch), so load drifts hit both alike; the ratio
 //! served ÷ in-process is what serving costs over simulating. `--latency` adds the round trip
@@ -21,6 +21,9 @@ use million_env::{
 use serde::Serialize;
 
 use crate::train::servers::check_local_server_args;
+
+/// The in-process side, run once per case.
+const SCRIPT: &str = "bench/env/inprocess_rate.py";
 
 #[derive(Debug, Args)]
 pub struct EnvBench {
@@ -83,12 +86,12 @@ pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
         extra_args: args.server_args.clone(),
         ..LocalServerOptions::default()
     };
-    let python = super::bench::python(args.python.as_deref());
-    let script = find_in_repository(Path::new("env-server/benchmarks/inprocess_rate.py"))
-        .context("env-server/benchmarks/inprocess_rate.py not found (set MILLION_ROOT)")?;
+    let python = super::python(args.python.as_deref());
+    let script = find_in_repository(Path::new(SCRIPT))
+        .with_context(|| format!("{SCRIPT} not found (set MILLION_ROOT)"))?;
     let binary = default_server_binary()?;
-    let rt = super::runtime(2)?;
-    let load_average_before = super::bench::load_average();
+    let rt = crate::cli::runtime(2)?;
+    let load_average_before = super::load_average();
     let mut cases = Vec::new();
     for env in &args.envs {
         for &servers in &args.servers {

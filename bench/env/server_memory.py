@@ -1,6 +1,6 @@
 """Env server memory per env slot: one server, N envs of one id, random actions.
 
-    .venv/bin/python env-server/benchmarks/server_memory.py \
+    .venv/bin/python bench/env/server_memory.py \
         --env million/ML10-train --num-envs 32 --resets 400 [--idle-envs 16] \
         [--compiled-models 10] [--json]
 

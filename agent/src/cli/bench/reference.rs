@@ -296,7 +296,7 @@ pub fn run(
     if iters == 0 || args.rounds == 0 || args.threads.contains(&0) {
         bail!("--iters, --rounds and every --threads must be at least 1");
     }
-    let python = super::bench::python(args.python.as_deref());
+    let python = super::python(args.python.as_deref());
     let torch = torch_version(&python)?;
     let script = find_in_repository(Path::new(SCRIPT))
         .with_context(|| format!("{SCRIPT} not found (set MILLION_ROOT to the repository)"))?;
@@ -363,7 +363,7 @@ pub fn run(
     remove_inputs();
 
     // Timing, alternating the order each round.
-    let load_before = super::bench::load_average();
+    let load_before = super::load_average();
     let mut timings = Vec::with_capacity(args.threads.len());
     for &threads in &args.threads {
         let (mut rust, mut pytorch) = (vec![], vec![]);
@@ -395,7 +395,7 @@ pub fn run(
             pytorch_rounds: pytorch,
         });
     }
-    let load_after = super::bench::load_average();
+    let load_after = super::load_average();
     drop(reference);
 
     let max_diff = |term: &str| {

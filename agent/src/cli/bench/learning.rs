@@ -130,10 +130,9 @@ pub struct LearningReport {
 }
 
 pub fn run(b: &LearningBench) -> anyhow::Result<()> {
-    let run_dir = b
-        .run_dir
-        .clone()
-        .unwrap_or_else(|| super::train::default_run_dir("bench-learning-", &b.config, b.seed));
+    let run_dir = b.run_dir.clone().unwrap_or_else(|| {
+        crate::cli::train::default_run_dir("bench-learning-", &b.config, b.seed)
+    });
     anyhow::ensure!(
         !run_dir.exists(),
         "{} exists: a learning bench starts from scratch (move it away or pass --run-dir)",
@@ -234,7 +233,7 @@ fn load(path: &Path, seed: Option<u64>) -> anyhow::Result<RunConfig> {
 }
 
 fn train_run(cfg: RunConfig, dir: &Path, max_seconds: f64) -> anyhow::Result<TrainSummary> {
-    let rt = super::runtime(cfg.runtime.io_threads)?;
+    let rt = crate::cli::runtime(cfg.runtime.io_threads)?;
     rt.block_on(train(TrainOptions {
         run_dir: Some(dir.to_owned()),
         max_seconds: Some(max_seconds),

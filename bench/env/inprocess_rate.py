@@ -1,6 +1,6 @@
 """The simulator's own speed: the same envs as a server would serve, stepped in-process.
 
-    .venv/bin/python env-server/benchmarks/inprocess_rate.py \
+    .venv/bin/python bench/env/inprocess_rate.py \
         --env million/ML10-train --batch 16 --workers 2 --seconds 10 [--kwargs '{}']
 
 `--workers` processes each make their share of `--batch` envs (`million_env.registry`

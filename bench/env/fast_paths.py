@@ -5,7 +5,7 @@ Meta-World's own code and once with the fast paths (`million_env.metaworld_fast_
 alternating, and the fastest of the repeats is kept. Times are this process's CPU time per
 env step, so other processes on a shared machine count little.
 
-    .venv/bin/python env-server/benchmarks/fast_paths.py --benchmark ML10 --steps 400 --repeats 5
+    .venv/bin/python bench/env/fast_paths.py --benchmark ML10 --steps 400 --repeats 5
 """
 
 from __future__ import annotations

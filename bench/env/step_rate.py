@@ -1,6 +1,6 @@
 """Served vs in-process step rate on Meta-World reach-v3 (random actions).
 
-    .venv/bin/python env-server/benchmarks/step_rate.py [--steps 3000] [--address HOST:PORT]
+    .venv/bin/python bench/env/step_rate.py [--steps 3000] [--address HOST:PORT]
 
 Without --address it starts the bundled server on a free loopback port. Counts env
 steps per second: one env, and a batch of 16 (in process: 16 envs stepped in a loop;

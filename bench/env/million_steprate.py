@@ -9,7 +9,7 @@ observation and info building included). Times are this process's CPU time, so
 other processes on a shared machine do not count; runs alternate and the fastest
 of each side is kept.
 
-    .venv/bin/python env-server/benchmarks/bench_million_steprate.py --episodes 20 --repeats 3
+    .venv/bin/python bench/env/million_steprate.py --episodes 20 --repeats 3
 """
 
 from __future__ import annotations

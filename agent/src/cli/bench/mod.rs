@@ -1,3 +1,13 @@
+//! `million bench <kind>`: every benchmark of BENCHMARKS.md, one entry point. `learner`,
+//! `acting` and `train` are here; `env`, `learning`, the PyTorch reference of `learner` and
+//! the env server's Python benchmarks (`script`) have a module each. The Python they run
+//! lives in bench/ at the repository's root.
+
+mod env;
+mod learning;
+mod reference;
+mod script;
+
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -20,7 +30,7 @@ pub enum BenchCommand {
         #[command(flatten)]
         bench: ModelBench,
         #[command(flatten)]
-        reference: super::bench_reference::ReferenceArgs,
+        reference: reference::ReferenceArgs,
     },
     /// Acting steps per second (all env slots) of the config's model, no envs.
     Acting(ModelBench),
@@ -28,10 +38,13 @@ pub enum BenchCommand {
     /// CPU seconds and peak memory of the agent and of every local env server.
     Train(TrainBench),
     /// Env steps/s served through the API against the same envs stepped in-process.
-    Env(super::bench_env::EnvBench),
+    Env(env::EnvBench),
     /// Whether a config learns to its success targets within a wall-clock budget, and its
     /// first-trial gap to an ablation at the same agent steps (RESULTS.md's targets).
-    Learning(super::bench_learning::LearningBench),
+    Learning(learning::LearningBench),
+    /// One of the env server's Python benchmarks (bench/env/), run with the repository's
+    /// Python; the arguments after NAME go to the script (`NAME --help` lists them).
+    Script(script::ScriptBench),
 }
 
 #[derive(Debug, Args)]
@@ -90,7 +103,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
             reference,
         } => {
             if reference.reference {
-                return super::bench_reference::run(&b.config, b.iters, &reference, random_batch);
+                return reference::run(&b.config, b.iters, &reference, random_batch);
             }
             let cfg = RunConfig::from_file(&b.config)?;
             cfg.runtime.apply();
@@ -137,8 +150,9 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
             );
         }
         BenchCommand::Train(b) => train_bench(b)?,
-        BenchCommand::Env(b) => return super::bench_env::run(&b),
-        BenchCommand::Learning(b) => super::bench_learning::run(&b)?,
+        BenchCommand::Env(b) => return env::run(&b),
+        BenchCommand::Learning(b) => learning::run(&b)?,
+        BenchCommand::Script(b) => return script::run(&b),
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -209,7 +223,7 @@ fn train_bench(b: TrainBench) -> anyhow::Result<()> {
 }
 
 /// The 1-minute load average, reported with timings: other work on the machine skews them.
-pub(super) fn load_average() -> Option<f64> {
+fn load_average() -> Option<f64> {
     std::fs::read_to_string("/proc/loadavg")
         .ok()?
         .split_whitespace()
@@ -220,7 +234,7 @@ pub(super) fn load_average() -> Option<f64> {
 
 /// The Python that runs a bench's Python side: `explicit` (`--python`), else the
 /// repository's `.venv/bin/python`, else `python3` on PATH.
-pub(super) fn python(explicit: Option<&Path>) -> PathBuf {
+fn python(explicit: Option<&Path>) -> PathBuf {
     explicit
         .map(Path::to_path_buf)
         .or_else(|| million_env::find_in_repository(Path::new(".venv/bin/python")))
