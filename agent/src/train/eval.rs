@@ -54,16 +54,20 @@ pub struct EvalReport {
     pub mean_return: f64,
 }
 
-/// A persistent evaluation pool for one split.
+/// The evaluation of one split. Its envs exist only while it runs: a split of 100 Meta-World
+/// episodes holds ~1 GB per env server, which a run would otherwise keep between
+/// evaluations, and runs side by side ran out of memory so.
 pub struct Evaluator {
     split: EvalSplit,
-    pool: EnvPool,
+    pool_cfg: PoolConfig,
     bounds: ActionBounds,
     episodes: usize,
     first_trial_within: Vec<u64>,
 }
 
 impl Evaluator {
+    /// Checks the split by making its envs once (a bad id or kwarg fails here, at start-up,
+    /// not at the first evaluation), then lets them go.
     pub async fn connect(
         servers: &[String],
         split: EvalSplit,
@@ -73,22 +77,27 @@ impl Evaluator {
         client: ClientConfig,
         action_dim: usize,
     ) -> anyhow::Result<Self> {
-        let mut cfg = PoolConfig::new(servers.to_vec(), split.env_id.clone(), episodes);
-        cfg.kwargs = split.kwargs.clone();
-        cfg.seed = Some(seed);
-        cfg.autoreset = AutoresetMode::SameStep;
-        cfg.client = client;
-        let pool = EnvPool::connect(cfg)
-            .await
-            .map_err(|e| anyhow::anyhow!("eval split {} ({}): {e}", split.name, split.env_id))?;
+        let mut pool_cfg = PoolConfig::new(servers.to_vec(), split.env_id.clone(), episodes);
+        pool_cfg.kwargs = split.kwargs.clone();
+        pool_cfg.seed = Some(seed);
+        pool_cfg.autoreset = AutoresetMode::SameStep;
+        pool_cfg.client = client;
+        let pool = Self::open(&split, &pool_cfg).await?;
         let bounds = ActionBounds::from_space(&pool.spec().action_space, action_dim)?;
+        pool.close().await?;
         Ok(Self {
             split,
-            pool,
+            pool_cfg,
             bounds,
             episodes,
             first_trial_within: first_trial_within.to_vec(),
         })
+    }
+
+    async fn open(split: &EvalSplit, cfg: &PoolConfig) -> anyhow::Result<EnvPool> {
+        EnvPool::connect(cfg.clone())
+            .await
+            .map_err(|e| anyhow::anyhow!("eval split {} ({}): {e}", split.name, split.env_id))
     }
 
     pub fn split(&self) -> &EvalSplit {
@@ -101,41 +110,60 @@ impl Evaluator {
     /// true rate was ~0.2). The pool has rebuilt the envs by then, and the retry's reset
     /// with the first seeds scores the same episodes.
     pub async fn run(&mut self, model: &Model) -> anyhow::Result<EvalReport> {
+        let mut pool = Self::open(&self.split, &self.pool_cfg).await?;
+        let mut result = None;
         for attempt in 1..=EVAL_ATTEMPTS {
-            match self.run_once(model).await? {
-                Some(report) => return Ok(report),
-                None if attempt < EVAL_ATTEMPTS => tracing::warn!(
+            match self.run_once(&mut pool, model).await {
+                Ok(Some(report)) => {
+                    result = Some(Ok(report));
+                    break;
+                }
+                Ok(None) if attempt < EVAL_ATTEMPTS => tracing::warn!(
                     split = %self.split.name,
                     attempt,
                     "an env server was lost during the evaluation; scoring it again"
                 ),
-                None => {}
+                Ok(None) => {}
+                Err(e) => {
+                    result = Some(Err(e));
+                    break;
+                }
             }
         }
-        anyhow::bail!(
-            "eval split {}: an env server was lost during each of {EVAL_ATTEMPTS} attempts",
-            self.split.name
-        )
+        // Dropping the pool would free the envs too; closing says so to the servers at once.
+        if let Err(e) = pool.close().await {
+            tracing::warn!(split = %self.split.name, "closing the evaluation's envs: {e}");
+        }
+        result.unwrap_or_else(|| {
+            Err(anyhow::anyhow!(
+                "eval split {}: an env server was lost during each of {EVAL_ATTEMPTS} attempts",
+                self.split.name
+            ))
+        })
     }
 
     /// One attempt; `None` when an env server was lost during it (an episode it scores was
     /// cut). A server lost during the reset is no loss: the pool rebuilds its envs with the
     /// seeds the reset asked for, so they begin the same episodes.
-    async fn run_once(&mut self, model: &Model) -> anyhow::Result<Option<EvalReport>> {
+    async fn run_once(
+        &self,
+        pool: &mut EnvPool,
+        model: &Model,
+    ) -> anyhow::Result<Option<EvalReport>> {
         // Same seeds every time: the tasks, goals and starts of an eval are those of the
         // last one, so successive evals compare like with like and every task keeps its share
         // (unseeded resets would continue each env's task cycle from wherever it stopped).
-        let reset = self.pool.reset_to_first_episodes(0).await?;
+        let reset = pool.reset_to_first_episodes(0).await?;
         let env_id = self.split.env_id.clone();
         let tasks: Vec<String> = (0..self.episodes)
             .map(|row| text(&reset.info, "task_name", row).unwrap_or_else(|| env_id.clone()))
             .collect();
         let mut tally = EvalTally::new(&tasks, &env_id, &self.first_trial_within);
-        let mut actor = GroupActor::new(model, &self.pool, 0);
+        let mut actor = GroupActor::new(model, pool, 0);
         actor.observe_reset(model, &reset.obs)?;
         while !tally.finished() {
-            actor.act_and_send(model, &mut self.pool, &self.bounds, true)?;
-            let step = self.pool.recv(0).await?;
+            actor.act_and_send(model, pool, &self.bounds, true)?;
+            let step = pool.recv(0).await?;
             actor.observe_step(model, &step, false)?;
             if tally.observe(&step) == Scoring::Void {
                 return Ok(None);
@@ -144,8 +172,8 @@ impl Evaluator {
         Ok(Some(tally.report(&self.split.name, env_id)))
     }
 
+    /// Nothing is held between evaluations; kept so callers say when they are done.
     pub async fn close(self) -> anyhow::Result<()> {
-        self.pool.close().await?;
         Ok(())
     }
 }
