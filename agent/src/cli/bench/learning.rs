@@ -1,12 +1,14 @@
-//! `million bench learning`: does a config learn to its targets within a wall-clock budget?
+//! `million bench learning`: does a config learn to its targets within a budget of agent steps?
 //!
 //! The learning targets (RESULTS.md; e.g. ML1-reach: train success ≥ 0.9 and held-out
-//! success ≥ 0.8 within 60 minutes, first trials ≥ 0.3 above the no-instructions ablation)
-//! take longer than CI allows, so they are a bench that is run and recorded (RESULTS.md), not
-//! a test. It trains the config for at most `--minutes` (local env servers, deterministic
+//! success ≥ 0.8 within 2.5 M agent steps, first trials ≥ 0.3 above the no-instructions
+//! ablation) take longer than CI allows, so they are a bench that is run and recorded
+//! (RESULTS.md), not a test. It trains the config for `--steps` agent steps (default: the
+//! config's `train.total_agent_steps`; lockstep pacing makes that the same run on any machine;
+//! local env servers, deterministic
 //! evaluations at the config's `eval_interval` and at the end), then, with `--ablation`, the
 //! ablation config for the same agent steps, evaluated at the same steps. It reports when each
-//! split first reached its target (agent steps and minutes, evaluations included), each split's
+//! split first reached its target (agent steps, and minutes for information), each split's
 //! best and last figures, and the first-trial gap to the ablation at every shared evaluation:
 //! on first trials that succeeded at all, and on those that succeeded within each env-step
 //! budget of the config's `eval.first_trial_within` (on ML1-reach a policy without the words
@@ -35,10 +37,10 @@ pub struct LearningBench {
     /// the config reached.
     #[arg(long)]
     pub ablation: Option<PathBuf>,
-    /// Wall-clock budget of the config's training, its periodic evaluations included (the
-    /// final evaluation of the weights at the budget's end follows it).
-    #[arg(long, default_value_t = 60.0)]
-    pub minutes: f64,
+    /// Budget of the config's training in agent steps (default: its train.total_agent_steps);
+    /// the run is evaluated at its eval_interval and at the end.
+    #[arg(long)]
+    pub steps: Option<u64>,
     /// Replicate N (as `million train --seed`), for both runs.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -119,7 +121,7 @@ pub struct WithinGaps {
 pub struct LearningReport {
     pub config: PathBuf,
     pub seed: Option<u64>,
-    pub budget_minutes: f64,
+    pub budget_agent_steps: u64,
     pub agent_steps: u64,
     pub minutes: f64,
     pub agent_steps_per_s: f64,
@@ -138,8 +140,9 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
         "{} exists: a learning bench starts from scratch (move it away or pass --run-dir)",
         run_dir.display()
     );
-    anyhow::ensure!(b.minutes > 0.0, "--minutes must be > 0");
     let mut cfg = load(&b.config, b.seed)?;
+    let budget = b.steps.unwrap_or(cfg.train.total_agent_steps);
+    anyhow::ensure!(budget > 0, "--steps must be > 0");
     anyhow::ensure!(
         cfg.train.eval_interval > 0,
         "{}: train.eval_interval is 0, so there is no curve to read targets from",
@@ -153,10 +156,10 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
         .map(|path| load(path, b.seed).map(|cfg| (path, cfg)))
         .transpose()?;
     let budgets = cfg.eval.first_trial_within.clone();
-    // The budget is wall-clock: the config's step count and early stop do not end it sooner.
-    cfg.train.total_agent_steps = u64::MAX;
+    // The whole budget runs: an early stop would hide what comes after the target.
+    cfg.train.total_agent_steps = budget;
     cfg.train.stop_at_success = 2.0;
-    let main = train_run(cfg, &run_dir.join("run"), b.minutes * 60.0)?;
+    let main = train_run(cfg, &run_dir.join("run"))?;
     let splits = [("train", b.train_target), ("test", b.test_target)]
         .into_iter()
         .filter_map(|(split, target)| split_result(&main.curve, split, target))
@@ -168,15 +171,7 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
             cfg.train.total_agent_steps = main.agent_steps;
             cfg.train.eval_interval = eval_interval;
             cfg.train.stop_at_success = 2.0;
-            // Generous: the ablation has a step budget; this only guards against a hang.
-            let blind = train_run(cfg, &run_dir.join("ablation"), 4.0 * b.minutes * 60.0)?;
-            if blind.agent_steps < main.agent_steps {
-                tracing::warn!(
-                    "the ablation stopped at {} of {} agent steps (time guard)",
-                    blind.agent_steps,
-                    main.agent_steps
-                );
-            }
+            let blind = train_run(cfg, &run_dir.join("ablation"))?;
             let tolerance = eval_interval / SAME_STEPS_FRACTION;
             let gaps = first_trial_gaps(&main.curve, &blind.curve, tolerance, FirstTrial::Success);
             let met =
@@ -207,7 +202,7 @@ pub fn run(b: &LearningBench) -> anyhow::Result<()> {
     let report = LearningReport {
         config: b.config.clone(),
         seed: b.seed,
-        budget_minutes: b.minutes,
+        budget_agent_steps: budget,
         agent_steps: main.agent_steps,
         minutes: main.wall_s / 60.0,
         agent_steps_per_s: main.agent_steps_per_s,
@@ -232,11 +227,10 @@ fn load(path: &Path, seed: Option<u64>) -> anyhow::Result<RunConfig> {
     Ok(cfg)
 }
 
-fn train_run(cfg: RunConfig, dir: &Path, max_seconds: f64) -> anyhow::Result<TrainSummary> {
+fn train_run(cfg: RunConfig, dir: &Path) -> anyhow::Result<TrainSummary> {
     let rt = crate::cli::runtime(cfg.runtime.io_threads)?;
     rt.block_on(train(TrainOptions {
         run_dir: Some(dir.to_owned()),
-        max_seconds: Some(max_seconds),
         ..TrainOptions::local(cfg)
     }))
     .with_context(|| format!("training into {}", dir.display()))
@@ -358,11 +352,11 @@ pub fn final_gap_met(with: &[CurvePoint], gaps: &[GapPoint], target: f64, tolera
 
 fn print_report(r: &LearningReport) {
     println!(
-        "{}: {} agent steps in {:.1} min (budget {:.1}; {:.0} steps/s, replay ratio {:.2}); runs in {}",
+        "{}: {} agent steps (budget {}) in {:.1} min ({:.0} steps/s, replay ratio {:.2}); runs in {}",
         r.config.display(),
         r.agent_steps,
+        r.budget_agent_steps,
         r.minutes,
-        r.budget_minutes,
         r.agent_steps_per_s,
         r.replay_ratio,
         r.run_dir.display()
