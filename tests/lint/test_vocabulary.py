@@ -27,29 +27,31 @@ def _load() -> ModuleType:
 lint = _load()
 
 
+# The samples write the space of each flagged phrase as \x20, so that this file's source
+# holds no hit of its own for a checker that reads it as text.
 @pytest.mark.parametrize(
     ("line", "kind"),
     [
-        ("Stop 31, `million bench learning` (seed 2, 30 min)", "work number"),
-        ("the check stop 31 asked for", "work number"),
-        ("Stops 27-29 (five runs) each learned a subset", "work number"),
-        ("stops 27\u201329 left it open", "work number"),
-        ("as in stops 24 and 33", "work number"),
+        ("Stop\x2031, `million bench learning` (seed 2, 30 min)", "work number"),
+        ("the check stop\x2031 asked for", "work number"),
+        ("Stops\x2027-29 (five runs) each learned a subset", "work number"),
+        ("stops\x2027\u201329 left it open", "work number"),
+        ("as in stops\x2024 and 33", "work number"),
         ("docs/learning/rung3-stop31-maps.png", "work number"),
-        ("the earlier 0.8x (issue 9) is gone", "issue number"),
-        ("see issue #12", "issue number"),
-        ("Rung 2's config is now", "ladder rung"),
-        ("on rungs 3 and 4", "ladder rung"),
+        ("the earlier 0.8x (issue\x209) is gone", "issue number"),
+        ("see issue\x20#12", "issue number"),
+        ("Rung\x202's config is now", "ladder rung"),
+        ("on rungs\x203 and 4", "ladder rung"),
         ("the floor every ladder rung must beat", "ladder rung"),
         ("docs/learning/rung2-seed1-ablation.png", "ladder rung"),
         ("the served rung-2 run", "ladder rung"),
-        ("rerun this session (same code)", "working period"),
-        ("the next session will tell", "working period"),
-        ("found in an earlier session", "working period"),
+        ("rerun this\x20session (same code)", "working period"),
+        ("the next\x20session will tell", "working period"),
+        ("found in an earlier\x20session", "working period"),
         ("the pair of the session before", "working period"),
         ("stopped by the session's end", "working period"),
         ("the run directory went with the session", "working period"),
-        ("status (latest session)", "working period"),
+        ("status (latest\x20session)", "working period"),
         ("this machine was faster today", "today"),
         ("most of today's margin is the machine", "today"),
     ],
@@ -86,12 +88,12 @@ def test_leaves_legitimate_uses_alone(line: str) -> None:
 
 
 def test_scan_reports_lines_and_file_names(tmp_path: Path) -> None:
-    (tmp_path / "notes.md").write_text("fine\nthis session's runs\nfine again\n")
+    (tmp_path / "notes.md").write_text("fine\nthis\x20session's runs\nfine again\n")
     (tmp_path / "rung2-curve.png").write_bytes(b"\x89PNG\0\0\0")
     (tmp_path / "clean.md").write_text("The run stops at 0.95.\n")
     hits = lint.scan(tmp_path, ["notes.md", "rung2-curve.png", "clean.md", "gone.md"])
     assert [str(h) for h in hits] == [
-        "notes.md:2: this session's runs (working period)",
+        "notes.md:2: this\x20session's runs (working period)",
         "rung2-curve.png: file name (ladder rung)",
     ]
 
@@ -99,7 +101,9 @@ def test_scan_reports_lines_and_file_names(tmp_path: Path) -> None:
 def test_skips_itself_and_its_test(tmp_path: Path) -> None:
     for path in lint.SKIPPED:
         (tmp_path / path).parent.mkdir(parents=True, exist_ok=True)
-        (tmp_path / path).write_text("stop 31, issue 8, rung 2, this session, today\n")
+        (tmp_path / path).write_text(
+            "stop\x2031, issue\x208, rung\x202, this\x20session, today\n"
+        )
     assert lint.scan(tmp_path, sorted(lint.SKIPPED)) == []
 
 
