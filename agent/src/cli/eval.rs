@@ -128,7 +128,6 @@ pub fn run(a: EvalArgs) -> anyhow::Result<ExitCode> {
             )
             .await?;
             out.push(ev.run(&model).await?);
-            ev.close().await?;
         }
         anyhow::Ok(out)
     })?;

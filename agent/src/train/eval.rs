@@ -171,11 +171,6 @@ impl Evaluator {
         }
         Ok(Some(tally.report(&self.split.name, env_id)))
     }
-
-    /// Nothing is held between evaluations; kept so callers say when they are done.
-    pub async fn close(self) -> anyhow::Result<()> {
-        Ok(())
-    }
 }
 
 /// Attempts at one evaluation before it fails (each lost server voids one).

@@ -159,11 +159,9 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         agent_steps,
     );
     run.local_servers = local_servers;
-    let start = Instant::now();
-    let cpu_start = thread_cpu_seconds();
     let outcome = run.run(&mut learner_thread).await;
-    let actor_cpu_s = thread_cpu_seconds() - cpu_start;
-    let wall_s = start.elapsed().as_secs_f64();
+    let actor_cpu_s = thread_cpu_seconds() - run.cpu_start;
+    let wall_s = run.start.elapsed().as_secs_f64();
     run.bar.finish_and_clear();
 
     let (mut learner, buffer_counters, learner_cpu_s, replay_ratio) = learner_thread.finish()?;
@@ -188,7 +186,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         }
         None => None,
     };
-    let final_eval = run.final_evaluation(start).await?;
+    let final_eval = run.final_evaluation().await?;
     run.pool.close().await?;
     let steps = run.agent_steps - run.start_steps;
     let updates = learner.updates();
@@ -623,21 +621,20 @@ impl<'a> ActorLoop<'a> {
         Ok(reached)
     }
 
-    /// Evaluates every split with the actor's weights (the result's) and closes the
-    /// evaluators.
-    async fn final_evaluation(&mut self, start: Instant) -> anyhow::Result<Vec<EvalReport>> {
+    /// Evaluates every split with the actor's weights (the result's); unlike a periodic
+    /// evaluation, a failure here ends the run with an error.
+    async fn final_evaluation(&mut self) -> anyhow::Result<Vec<EvalReport>> {
         let mut final_eval = vec![];
         let mut s = Scalars::new();
-        for mut ev in std::mem::take(&mut self.evaluators) {
+        for ev in self.evaluators.iter_mut() {
             let r = ev.run(&self.model).await?;
             record_eval(&mut s, &r);
             self.curve.push(CurvePoint::of(
                 &r,
                 self.agent_steps,
-                start.elapsed().as_secs_f64(),
+                self.start.elapsed().as_secs_f64(),
             ));
             final_eval.push(r);
-            ev.close().await?;
         }
         if !final_eval.is_empty()
             && let Some(w) = self.metrics.as_mut()
