@@ -400,8 +400,10 @@ impl Default for RuntimeConfig {
 
 impl RuntimeConfig {
     /// Applies the thread setting to libtorch for the calling thread (OpenMP settings are
-    /// per thread: call it in the actor and in the learner thread).
+    /// per thread: call it in the actor and in the learner thread), and tunes the process's
+    /// heap for tensor churn once ([`crate::heap`]).
     pub fn apply(&self) {
+        crate::heap::keep_freed_memory();
         tch::set_num_threads(self.intra_op_threads.max(1) as i32);
     }
 

@@ -26,6 +26,7 @@ pub mod checkpoint;
 pub mod cli;
 pub mod config;
 pub mod font;
+pub mod heap;
 pub mod learner;
 pub mod metrics;
 pub mod model;
