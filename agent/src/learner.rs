@@ -475,8 +475,9 @@ impl Learner {
         //    or the behaviour distribution stored at acting time.
         let (old_mean, old_std) = match &self.target {
             Some(target) => tch::no_grad(|| {
-                let o = target.forward_segment(&b.obs, &b.episode_start, &b.memory, &b.memory_len);
-                (flat_actions(&o.mean), flat_actions(&o.std))
+                let (mean, std) =
+                    target.policy_segment(&b.obs, &b.episode_start, &b.memory, &b.memory_len);
+                (flat_actions(&mean), flat_actions(&std))
             }),
             None => (
                 flat_actions(&b.behaviour_mean),

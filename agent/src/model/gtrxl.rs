@@ -43,12 +43,14 @@ impl Gate {
 
     /// The gate output and its update gate z (z ≈ 0 means the gate passes x through).
     pub fn forward_with_update_gate(&self, x: &Tensor, y: &Tensor) -> (Tensor, Tensor) {
-        let wy = self.w.forward(y).chunk(3, -1);
-        let ux = self.u_rz.forward(x).chunk(2, -1);
-        let r = (&wy[0] + &ux[0]).sigmoid();
-        let z = (&wy[1] + &ux[1] - &self.b_g).sigmoid();
-        let h = (&wy[2] + self.u_g.forward(&(&r * x))).tanh();
-        (x + &z * (h - x), z)
+        let d = self.b_g.size()[0];
+        let wy = self.w.forward(y);
+        // W_r y + U_r x and W_z y + U_z x in one addition; x + z ⊙ (h − x) in one lerp.
+        let rz = wy.narrow(-1, 0, 2 * d) + self.u_rz.forward(x);
+        let r = rz.narrow(-1, 0, d).sigmoid();
+        let z = (rz.narrow(-1, d, d) - &self.b_g).sigmoid();
+        let h = (wy.narrow(-1, 2 * d, d) + self.u_g.forward(&(&r * x))).tanh();
+        (x.lerp_tensor(&h, &z), z)
     }
 }
 

@@ -159,6 +159,21 @@ impl Model {
             .view(shape.as_slice())
     }
 
+    /// The policy's mean and std `[B, T, A]` alone over a segment: all the target network is
+    /// asked for (V-MPO's KL reference), so its value head is not computed.
+    pub fn policy_segment(
+        &self,
+        obs: &Tensor,
+        episode_start: &Tensor,
+        memory: &Tensor,
+        memory_len: &Tensor,
+    ) -> (Tensor, Tensor) {
+        let core = self
+            .core
+            .forward_segment(&self.embed(obs), episode_start, memory, memory_len);
+        self.policy(&core.output)
+    }
+
     /// Learning forward pass over `obs` `[B, T, obs]` with the memory stored at segment start.
     pub fn forward_segment(
         &self,
