@@ -85,7 +85,7 @@ fn check(config: &Path) {
             let (rust, pytorch) = (v["rust"].as_f64().unwrap(), v["pytorch"].as_f64().unwrap());
             let diff = (rust - pytorch).abs();
             assert!(
-                rust.is_finite() && (diff <= 1e-4 || diff <= 1e-4 * rust.abs()),
+                rust.is_finite() && (diff <= 1e-5 || diff <= 1e-5 * rust.abs()),
                 "{}: {stage} {term}: rust {rust}, pytorch {pytorch}",
                 config.display()
             );

@@ -167,6 +167,33 @@ fn bench_learner_and_acting_run_on_the_quickstart_model() {
         "1",
     ]);
     assert!(learner.contains("s/update"), "{learner}");
+    // The learner's multiply-adds per update at the quickstart's sizes, counted from the
+    // config (a change to the count or to the model's sizes shows here).
+    assert!(learner.contains("M multiply-adds per update"), "{learner}");
+    // Against another build (here the same one): both sides timed, the ratio printed last.
+    let exe = env!("CARGO_BIN_EXE_million");
+    let against = million(&[
+        "bench",
+        "learner",
+        "--config",
+        "configs/quickstart.toml",
+        "--iters",
+        "1",
+        "--against",
+        exe,
+        "--against-rounds",
+        "2",
+    ]);
+    let report: Value = serde_json::from_str(against.lines().last().unwrap()).unwrap();
+    for side in ["this_updates_per_s", "other_updates_per_s"] {
+        let rounds = report[side].as_array().unwrap();
+        assert_eq!(rounds.len(), 2, "{against}");
+        assert!(
+            rounds.iter().all(|r| r.as_f64().unwrap() > 0.0),
+            "{against}"
+        );
+    }
+    assert!(report["ratio"].as_f64().unwrap() > 0.0, "{against}");
     let acting = million(&[
         "bench",
         "acting",

@@ -1,9 +1,10 @@
-//! `million bench <kind>`: every benchmark of BENCHMARKS.md, one entry point. `learner`,
-//! `acting` and `train` are here; `env`, `learning`, the PyTorch reference of `learner` and
+//! `million bench <kind>`: every benchmark of BENCHMARKS.md, one entry point. `acting` and
+//! `train` are here; `env`, `learner`, `learning`, the PyTorch reference of `learner` and
 //! the env server's Python benchmarks (`script`) have a module each. The Python they run
 //! lives in bench/ at the repository's root.
 
 mod env;
+mod learner;
 mod learning;
 mod reference;
 mod script;
@@ -18,7 +19,6 @@ use tch::{Device, Kind, Tensor};
 
 use crate::algo::buffer::SegmentBatch;
 use crate::config::AgentConfig;
-use crate::learner::Learner;
 use crate::procstat::{self, ChildSampler, ProcessUsage};
 use crate::run_config::RunConfig;
 use crate::train::session::{TrainOptions, train};
@@ -31,6 +31,8 @@ pub enum BenchCommand {
         bench: ModelBench,
         #[command(flatten)]
         reference: reference::ReferenceArgs,
+        #[command(flatten)]
+        against: learner::AgainstArgs,
     },
     /// Acting steps per second (all env slots) of the config's model, no envs.
     Acting(ModelBench),
@@ -101,29 +103,12 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
         BenchCommand::Learner {
             bench: b,
             reference,
+            against,
         } => {
             if reference.reference {
                 return reference::run(&b.config, b.iters, &reference, random_batch);
             }
-            let cfg = RunConfig::from_file(&b.config)?;
-            cfg.runtime.apply();
-            let agent = cfg.agent();
-            let mut learner = Learner::new(agent.clone(), cfg.runtime.device());
-            let batch = random_batch(&agent, agent.buffer.batch_segments as i64);
-            learner.update(&batch)?;
-            let start = Instant::now();
-            for _ in 0..b.iters {
-                learner.update(&batch)?;
-            }
-            let s = start.elapsed().as_secs_f64() / b.iters as f64;
-            println!(
-                "learner: {:.3} s/update ({:.2} updates/s, {:.0} learned steps/s) b={} T={}",
-                s,
-                1.0 / s,
-                (agent.buffer.batch_segments * agent.model.segment_len) as f64 / s,
-                agent.buffer.batch_segments,
-                agent.model.segment_len
-            );
+            learner::run(&b.config, b.iters, &against)?;
         }
         BenchCommand::Acting(b) => {
             let cfg = RunConfig::from_file(&b.config)?;

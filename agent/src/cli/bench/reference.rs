@@ -6,7 +6,7 @@
 //!    config to a directory (safetensors + JSON).
 //! 2. Check: the loss terms on those weights and that batch (no update), the metrics of one
 //!    update, and the terms after it, in Rust and in PyTorch; every value must agree to
-//!    1e-4 (absolute or relative), else the command fails.
+//!    1e-5 (absolute or relative), else the command fails.
 //! 3. Timing: per intra-op thread count, rounds of `iters` updates (each after one untimed
 //!    update), Rust then PyTorch, then PyTorch then Rust, and so on, so that drift in the
 //!    machine's load reaches both sides alike. The PyTorch side is one long-lived process
@@ -31,14 +31,14 @@ use crate::learner::Learner;
 use crate::run_config::RunConfig;
 
 /// Largest difference (absolute, or relative to the Rust value) accepted between the two.
-pub const TOLERANCE: f64 = 1e-4;
+pub const TOLERANCE: f64 = 1e-5;
 
 const SCRIPT: &str = "bench/learner_reference.py";
 
 #[derive(Debug, Args)]
 pub struct ReferenceArgs {
     /// Compare with the PyTorch reference (bench/learner_reference.py): the same loss on the
-    /// same weights and batch (fails beyond 1e-4), then updates/s side by side.
+    /// same weights and batch (fails beyond 1e-5), then updates/s side by side.
     #[arg(long)]
     pub reference: bool,
     /// Intra-op thread counts to time (with --reference).
