@@ -36,6 +36,22 @@ pub struct AgentConfig {
 pub struct ObsField {
     pub key: String,
     pub size: usize,
+    /// The field is one integer (a `task_id`), written into the token as a one-hot vector of
+    /// `size` entries; an integer outside `0..size` is an error. Default false: the field's
+    /// values as they come.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub one_hot: bool,
+}
+
+impl ObsField {
+    /// A field taken as it comes (not one-hot).
+    pub fn new(key: &str, size: usize) -> Self {
+        Self {
+            key: key.into(),
+            size,
+            one_hot: false,
+        }
+    }
 }
 
 /// Network shape (§2).
@@ -87,22 +103,10 @@ impl Default for ModelConfig {
     fn default() -> Self {
         Self {
             observation: vec![
-                ObsField {
-                    key: "state".into(),
-                    size: 39,
-                },
-                ObsField {
-                    key: "word".into(),
-                    size: 50,
-                },
-                ObsField {
-                    key: "time".into(),
-                    size: 1,
-                },
-                ObsField {
-                    key: "phase".into(),
-                    size: 1,
-                },
+                ObsField::new("state", 39),
+                ObsField::new("word", 50),
+                ObsField::new("time", 1),
+                ObsField::new("phase", 1),
             ],
             action_dim: 4,
             num_tasks: 50,

@@ -104,6 +104,43 @@ impl TokenBuilder {
 
 type RowsToken = (Vec<f32>, Vec<i64>, Vec<bool>);
 
+/// Writes a one-integer-per-row field as one-hot vectors of `f.size` entries at `offset` of
+/// each token row (`model.observation`'s `one_hot`).
+fn write_one_hot(
+    fields: &Fields,
+    f: &crate::config::ObsField,
+    token: &mut [f32],
+    dim: usize,
+    offset: usize,
+) -> Result<(), TokenError> {
+    let decode = |message: String| TokenError::Decode {
+        key: f.key.clone(),
+        message,
+    };
+    let ids = fields
+        .get(&f.key)
+        .ok_or_else(|| TokenError::Missing(f.key.clone()))?
+        .to_i64_vec()
+        .map_err(decode)?;
+    if ids.len() != fields.rows() {
+        return Err(TokenError::WrongSize {
+            key: f.key.clone(),
+            got: ids.len() / fields.rows().max(1),
+            expected: 1,
+        });
+    }
+    for (r, &id) in ids.iter().enumerate() {
+        if id < 0 || id as usize >= f.size {
+            return Err(decode(format!(
+                "{id} is outside the one-hot field's {} entries",
+                f.size
+            )));
+        }
+        token[r * dim + offset + id as usize] = 1.0;
+    }
+    Ok(())
+}
+
 /// The token rows with the configured fields written (the slots left zero), task ids and
 /// instruction flags.
 fn fields_token(cfg: &ModelConfig, fields: &Fields) -> Result<RowsToken, TokenError> {
@@ -112,6 +149,11 @@ fn fields_token(cfg: &ModelConfig, fields: &Fields) -> Result<RowsToken, TokenEr
     let mut token = vec![0f32; rows * dim];
     let mut offset = 0;
     for f in &cfg.observation {
+        if f.one_hot {
+            write_one_hot(fields, f, &mut token, dim, offset)?;
+            offset += f.size;
+            continue;
+        }
         let values = field_f32(fields, &f.key)?;
         if values.len() != rows * f.size {
             return Err(TokenError::WrongSize {
@@ -160,16 +202,7 @@ mod tests {
 
     fn cfg() -> ModelConfig {
         ModelConfig {
-            observation: vec![
-                ObsField {
-                    key: "word".into(),
-                    size: 2,
-                },
-                ObsField {
-                    key: "phase".into(),
-                    size: 1,
-                },
-            ],
+            observation: vec![ObsField::new("word", 2), ObsField::new("phase", 1)],
             num_tasks: 3,
             ..ModelConfig::default()
         }
@@ -203,6 +236,31 @@ mod tests {
         assert_eq!(
             Vec::<bool>::try_from(&s.instruction).unwrap(),
             vec![true, false]
+        );
+    }
+
+    #[test]
+    fn a_one_hot_field_writes_a_one_at_its_integer() {
+        let mut c = cfg();
+        c.observation.push(ObsField {
+            one_hot: true,
+            ..ObsField::new("task_id", 3)
+        });
+        let step = |c: &ModelConfig, task: &[i64]| {
+            TokenBuilder::new(c, 2).step_inputs(c, &fields(task), &[true, true])
+        };
+        let token = Vec::<f32>::try_from(step(&c, &[2, 0]).unwrap().token.flatten(0, -1)).unwrap();
+        #[rustfmt::skip]
+        assert_eq!(token, vec![
+            1.0, 2.0, 1.0, /* task 2 */ 0.0, 0.0, 1.0,
+            3.0, 4.0, 0.0, /* task 0 */ 1.0, 0.0, 0.0,
+        ]);
+        c.observation[2].size = 2;
+        let err = step(&c, &[2, 0]).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("outside the one-hot field's 2 entries"),
+            "{err}"
         );
     }
 

@@ -53,22 +53,10 @@ pub fn metrics_records(run_dir: &Path) -> Vec<serde_json::Map<String, serde_json
 pub fn small_model(segment_len: usize, memory_len: usize) -> ModelConfig {
     ModelConfig {
         observation: vec![
-            ObsField {
-                key: "state".into(),
-                size: 5,
-            },
-            ObsField {
-                key: "word".into(),
-                size: 3,
-            },
-            ObsField {
-                key: "time".into(),
-                size: 1,
-            },
-            ObsField {
-                key: "phase".into(),
-                size: 1,
-            },
+            ObsField::new("state", 5),
+            ObsField::new("word", 3),
+            ObsField::new("time", 1),
+            ObsField::new("phase", 1),
         ],
         action_dim: 2,
         num_tasks: 3,

@@ -72,10 +72,10 @@ fn paper_ml10_holds_the_paper_defaults_and_ablations_differ_where_they_should() 
     let paper = load("paper/ml10.toml");
     // The paper's values are the defaults, with the original's trial_success flag in the token.
     let mut expected = million::config::AgentConfig::default();
-    expected.model.observation.push(million::config::ObsField {
-        key: "trial_success".into(),
-        size: 1,
-    });
+    expected
+        .model
+        .observation
+        .push(million::config::ObsField::new("trial_success", 1));
     assert_eq!(paper.agent(), expected);
     assert_eq!(paper.env.id, "million/ML10-train");
     assert_eq!(paper.train.total_agent_steps, 400_000_000);
