@@ -6,7 +6,7 @@
 //!    config to a directory (safetensors + JSON).
 //! 2. Check: the loss terms on those weights and that batch (no update), the metrics of one
 //!    update, and the terms after it, in Rust and in PyTorch; every value must agree to
-//!    1e-5 (absolute or relative), else the command fails.
+//!    1e-5 (absolute or relative; 1e-3 after the Adam step), else the command fails.
 //! 3. Timing: per intra-op thread count, rounds of `iters` updates (each after one untimed
 //!    update), Rust then PyTorch, then PyTorch then Rust, and so on, so that drift in the
 //!    machine's load reaches both sides alike. The PyTorch side is one long-lived process
@@ -30,8 +30,22 @@ use crate::config::AgentConfig;
 use crate::learner::Learner;
 use crate::run_config::RunConfig;
 
-/// Largest difference (absolute, or relative to the Rust value) accepted between the two.
+/// Largest difference (absolute, or relative to the Rust value) accepted between the two on
+/// the same weights and batch: the loss terms before the update and the update's metrics.
 pub const TOLERANCE: f64 = 1e-5;
+/// The same after one Adam step. Adam's first step moves every weight by ± its step size
+/// whatever the gradient's magnitude, so a near-zero gradient whose last bits differ in sign
+/// puts that weight two step sizes apart; the terms after the step then differ by up to
+/// ~1e-4 (relative) on some random batches at configs/ml10.toml's sizes.
+pub const AFTER_STEP_TOLERANCE: f64 = 1e-3;
+
+fn tolerance(stage: &str) -> f64 {
+    if stage == "after" {
+        AFTER_STEP_TOLERANCE
+    } else {
+        TOLERANCE
+    }
+}
 
 const SCRIPT: &str = "bench/learner_reference.py";
 
@@ -261,7 +275,7 @@ fn compared(stage: &'static str, term: String, r: &Value, p: &Value) -> anyhow::
         rust: r,
         pytorch: p,
         abs_diff,
-        ok: abs_diff <= TOLERANCE || abs_diff <= TOLERANCE * r.abs(),
+        ok: abs_diff <= tolerance(stage) || abs_diff <= tolerance(stage) * r.abs(),
     })
 }
 
@@ -355,7 +369,7 @@ pub fn run(
             .collect();
         bail!(
             "the PyTorch reference disagrees with the Rust learner beyond {TOLERANCE} \
-             (inputs in {}):\n{}",
+             ({AFTER_STEP_TOLERANCE} after the step; inputs in {}):\n{}",
             dir.display(),
             lines.join("\n")
         );
@@ -427,6 +441,7 @@ pub fn run(
             "rounds": args.rounds,
             "check": {
                 "tolerance": TOLERANCE,
+                "tolerance_after_step": AFTER_STEP_TOLERANCE,
                 "passed": true,
                 "max_abs_diff": check,
                 "values": compared,
@@ -438,7 +453,7 @@ pub fn run(
     } else {
         println!(
             "check: {} terms agree with the PyTorch reference (torch {torch}) within {TOLERANCE} \
-             before, in and after one update; b={b} T={} layers={}",
+             before and in one update, {AFTER_STEP_TOLERANCE} after it; b={b} T={} layers={}",
             terms.len(),
             model.segment_len,
             model.layers
