@@ -20,6 +20,8 @@ use anyhow::Context;
 
 pub const CONFIG_FILE: &str = "config.toml";
 pub const METRICS_FILE: &str = "metrics.jsonl";
+/// Records a resumed (or restarted) run no longer continues: those after its checkpoint.
+pub const SUPERSEDED_METRICS_FILE: &str = "metrics.superseded.jsonl";
 pub const CHECKPOINTS_DIR: &str = "checkpoints";
 /// Keys of every metrics record besides the metrics.
 pub const STEP_KEY: &str = "step";

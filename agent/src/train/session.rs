@@ -144,7 +144,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     } else {
         vec![]
     };
-    let metrics = open_run_dir(&opts)?;
+    let metrics = open_run_dir(&opts, agent_steps)?;
     let mut extra = HashMap::new();
     extra.insert(RUN_CONFIG_KEY.to_owned(), toml::to_string(&cfg)?);
     let mut learner_thread = LearnerThread::spawn(learner, buffer, &cfg, extra.clone())?;
@@ -280,15 +280,17 @@ async fn connect_evaluators(
     Ok(evaluators)
 }
 
-/// Creates the run folder (config.toml, checkpoints/) and its metrics files.
-fn open_run_dir(opts: &TrainOptions) -> anyhow::Result<Option<MetricsWriter>> {
+/// Creates the run folder (config.toml, checkpoints/) and its metrics files; a run resumed
+/// at `agent_steps` keeps the records up to that step.
+fn open_run_dir(opts: &TrainOptions, agent_steps: u64) -> anyhow::Result<Option<MetricsWriter>> {
     let Some(dir) = &opts.run_dir else {
         return Ok(None);
     };
     std::fs::create_dir_all(dir.join(CHECKPOINTS_DIR))
         .with_context(|| format!("creating {}", dir.display()))?;
     std::fs::write(dir.join(CONFIG_FILE), toml::to_string(&opts.config)?)?;
-    Ok(Some(MetricsWriter::open(dir)?))
+    let resumed_at = opts.resume.then_some(agent_steps);
+    Ok(Some(MetricsWriter::open(dir, resumed_at)?))
 }
 
 /// The learner thread and the actor's channels to it.

@@ -1,6 +1,7 @@
 //! `million train` killed with SIGKILL after a checkpoint, then resumed with
 //! `--resume` and stopped with Ctrl-C (SIGINT): the resumed run starts from the
-//! last checkpoint's counters, appends to metrics.jsonl, and Ctrl-C ends it
+//! last checkpoint's counters, keeps metrics.jsonl up to that checkpoint (the killed
+//! run's later records move to metrics.superseded.jsonl), and Ctrl-C ends it
 //! cleanly with a final checkpoint. Uses the built binary on the quickstart
 //! config with short intervals, against an env server this test owns (so a
 //! killed agent leaves no orphan server behind).
@@ -134,19 +135,24 @@ fn kill_resume_and_ctrl_c() {
     assert!(last.updates >= killed_at.updates);
     assert!(last.adam_steps >= killed_at.adam_steps);
 
-    // metrics.jsonl was appended to: the first run's lines are kept verbatim,
-    // and the resumed run's steps start past the checkpoint it resumed from.
-    let after = metric_lines(&run_dir);
-    assert!(after.len() > before.len());
-    assert_eq!(after[..before.len()], before[..]);
-    let resumed_steps: Vec<u64> = after[before.len()..]
+    // metrics.jsonl keeps the first run's lines up to the checkpoint verbatim, then the
+    // resumed run's, whose steps start past it: no step is logged twice.
+    let kept = before
         .iter()
-        .map(|r| r["step"].as_u64().unwrap())
-        .collect();
+        .take_while(|r| r["step"].as_u64().unwrap() <= killed_at.agent_steps)
+        .count();
+    let after = metric_lines(&run_dir);
+    assert!(after.len() > kept);
+    assert_eq!(after[..kept], before[..kept]);
+    let steps: Vec<u64> = after.iter().map(|r| r["step"].as_u64().unwrap()).collect();
     assert!(
-        resumed_steps.iter().all(|&s| s > killed_at.agent_steps),
-        "resumed steps {resumed_steps:?} start after {}",
+        steps[kept..].iter().all(|&s| s > killed_at.agent_steps),
+        "resumed steps {steps:?} start after {}",
         killed_at.agent_steps
     );
+    assert!(steps.windows(2).all(|w| w[0] <= w[1]), "{steps:?}");
+    let superseded =
+        std::fs::read_to_string(run_dir.join("metrics.superseded.jsonl")).unwrap_or_default();
+    assert_eq!(superseded.lines().count(), before.len() - kept);
     drop(server);
 }
