@@ -40,14 +40,34 @@ pub const TASK_FIELD: &str = "task_id";
 pub const PHASE_FIELD: &str = "phase";
 
 fn field_f32(fields: &Fields, key: &str) -> Result<Vec<f32>, TokenError> {
-    fields
-        .get(key)
-        .ok_or_else(|| TokenError::Missing(key.to_owned()))?
-        .to_f32_vec()
-        .map_err(|message| TokenError::Decode {
+    decode_field(fields, key, |t| t.to_f32_vec())
+}
+
+/// An integer field of one value per row (task ids, one-hot fields).
+fn field_i64(fields: &Fields, key: &str) -> Result<Vec<i64>, TokenError> {
+    let values = decode_field(fields, key, |t| t.to_i64_vec())?;
+    if values.len() != fields.rows() {
+        return Err(TokenError::WrongSize {
             key: key.to_owned(),
-            message,
-        })
+            got: values.len() / fields.rows().max(1),
+            expected: 1,
+        });
+    }
+    Ok(values)
+}
+
+fn decode_field<T>(
+    fields: &Fields,
+    key: &str,
+    decode: impl FnOnce(&million_env::Tensor) -> Result<Vec<T>, String>,
+) -> Result<Vec<T>, TokenError> {
+    let tensor = fields
+        .get(key)
+        .ok_or_else(|| TokenError::Missing(key.to_owned()))?;
+    decode(tensor).map_err(|message| TokenError::Decode {
+        key: key.to_owned(),
+        message,
+    })
 }
 
 /// Builds the model's inputs step after step for a fixed set of env rows; it keeps the
@@ -113,28 +133,13 @@ fn write_one_hot(
     dim: usize,
     offset: usize,
 ) -> Result<(), TokenError> {
-    let decode = |message: String| TokenError::Decode {
-        key: f.key.clone(),
-        message,
-    };
-    let ids = fields
-        .get(&f.key)
-        .ok_or_else(|| TokenError::Missing(f.key.clone()))?
-        .to_i64_vec()
-        .map_err(decode)?;
-    if ids.len() != fields.rows() {
-        return Err(TokenError::WrongSize {
-            key: f.key.clone(),
-            got: ids.len() / fields.rows().max(1),
-            expected: 1,
-        });
-    }
+    let ids = field_i64(fields, &f.key)?;
     for (r, &id) in ids.iter().enumerate() {
         if id < 0 || id as usize >= f.size {
-            return Err(decode(format!(
-                "{id} is outside the one-hot field's {} entries",
-                f.size
-            )));
+            return Err(TokenError::Decode {
+                key: f.key.clone(),
+                message: format!("{id} is outside the one-hot field's {} entries", f.size),
+            });
         }
         token[r * dim + offset + id as usize] = 1.0;
     }
@@ -169,10 +174,7 @@ fn fields_token(cfg: &ModelConfig, fields: &Fields) -> Result<RowsToken, TokenEr
         offset += f.size;
     }
     let task = match fields.get(TASK_FIELD) {
-        Some(t) => t.to_i64_vec().map_err(|message| TokenError::Decode {
-            key: TASK_FIELD.into(),
-            message,
-        })?,
+        Some(_) => field_i64(fields, TASK_FIELD)?,
         None => vec![0; rows],
     };
     if let Some(&id) = task

@@ -158,32 +158,28 @@ fn bench_train_reports_every_process() {
 
 #[test]
 fn bench_learner_and_acting_run_on_the_quickstart_model() {
-    let learner = million(&[
+    let learner_args = [
         "bench",
         "learner",
         "--config",
         "configs/quickstart.toml",
         "--iters",
         "1",
-    ]);
+    ];
+    let learner = million(&learner_args);
     assert!(learner.contains("s/update"), "{learner}");
     // The learner's multiply-adds per update at the quickstart's sizes, counted from the
     // config (a change to the count or to the model's sizes shows here).
     assert!(learner.contains("M multiply-adds per update"), "{learner}");
     // Against another build (here the same one): both sides timed, the ratio printed last.
     let exe = env!("CARGO_BIN_EXE_million");
-    let against = million(&[
-        "bench",
-        "learner",
-        "--config",
-        "configs/quickstart.toml",
-        "--iters",
-        "1",
-        "--against",
-        exe,
-        "--against-rounds",
-        "2",
-    ]);
+    let against = million(
+        &[
+            &learner_args[..],
+            &["--against", exe, "--against-rounds", "2"],
+        ]
+        .concat(),
+    );
     let report: Value = serde_json::from_str(against.lines().last().unwrap()).unwrap();
     for side in ["this_updates_per_s", "other_updates_per_s"] {
         let rounds = report[side].as_array().unwrap();

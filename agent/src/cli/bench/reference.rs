@@ -269,13 +269,15 @@ fn compared(stage: &'static str, term: String, r: &Value, p: &Value) -> anyhow::
         .as_f64()
         .with_context(|| format!("the reference's `{term}` is not a number ({stage})"))?;
     let abs_diff = (r - p).abs();
+    // Absolute near zero, relative for large terms.
+    let tolerance = tolerance(stage) * r.abs().max(1.0);
     Ok(Compared {
         stage,
         term,
         rust: r,
         pytorch: p,
         abs_diff,
-        ok: abs_diff <= tolerance(stage) || abs_diff <= tolerance(stage) * r.abs(),
+        ok: abs_diff <= tolerance,
     })
 }
 
