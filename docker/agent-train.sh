@@ -6,13 +6,14 @@
 set -eu
 run_dir=
 prev=
+resume=
 for arg in "$@"; do
     [ "$prev" = --run-dir ] && run_dir=$arg
-    case $arg in --run-dir=*) run_dir=${arg#--run-dir=} ;; esac
+    case $arg in --run-dir=*) run_dir=${arg#--run-dir=} ;; --resume) resume=1 ;; esac
     prev=$arg
 done
 set -- train "$@"
-if [ -n "$run_dir" ] && ls "$run_dir"/checkpoints/step-*.safetensors >/dev/null 2>&1; then
+if [ -z "$resume" ] && [ -n "$run_dir" ] && ls "$run_dir"/checkpoints/step-*.safetensors >/dev/null 2>&1; then
     echo "million-train: $run_dir has checkpoints; resuming" >&2
     set -- "$@" --resume
 fi

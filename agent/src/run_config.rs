@@ -167,6 +167,13 @@ impl RunConfig {
     }
 
     /// The agent's sections.
+    /// Where a leg that stops at `until` (None: the budget) ends, in agent steps.
+    pub fn leg_end(&self, until: Option<u64>) -> u64 {
+        until.map_or(self.train.total_agent_steps, |u| {
+            u.min(self.train.total_agent_steps)
+        })
+    }
+
     pub fn agent(&self) -> AgentConfig {
         AgentConfig {
             model: self.model.clone(),

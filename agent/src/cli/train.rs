@@ -3,10 +3,13 @@ use std::process::ExitCode;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
+use anyhow::Context;
 use clap::Args;
 
+use crate::checkpoint;
 use crate::cli::access::EnvAccessArgs;
 use crate::run_config::RunConfig;
+use crate::run_dir::{CHECKPOINTS_DIR, latest_checkpoint};
 use crate::train::session::{TrainOptions, train};
 
 #[derive(Debug, Args)]
@@ -49,6 +52,38 @@ pub(super) fn default_run_dir(prefix: &str, config: &Path, seed: Option<u64>) ->
     PathBuf::from("runs").join(format!("{prefix}{name}{suffix}"))
 }
 
+/// Checks the run directory before anything starts: a new run refuses a folder that holds
+/// another run's checkpoints (a later --resume would take the newest, possibly the other
+/// run's); a resumed run needs a checkpoint. Some(steps) when the resumed run has nothing
+/// left to train before `stop_at`.
+fn check_run_dir(run_dir: &Path, resume: bool, stop_at: u64) -> anyhow::Result<Option<u64>> {
+    let newest = latest_checkpoint(run_dir).ok();
+    let steps = |path: &Path| -> anyhow::Result<u64> {
+        Ok(checkpoint::read_meta(path)
+            .with_context(|| format!("reading {}", path.display()))?
+            .counters
+            .agent_steps)
+    };
+    match (resume, newest) {
+        (false, Some(path)) => anyhow::bail!(
+            "{} already holds a run (newest checkpoint at {} agent steps): add --resume to \
+             continue it, or give another --run-dir",
+            run_dir.display(),
+            steps(&path)?
+        ),
+        (false, None) => Ok(None),
+        (true, None) => anyhow::bail!(
+            "--resume: no checkpoint in {} (the run directory follows --run-dir, else the \
+             config's name and --seed)",
+            run_dir.join(CHECKPOINTS_DIR).display()
+        ),
+        (true, Some(path)) => {
+            let at = steps(&path)?;
+            Ok((at >= stop_at).then_some(at))
+        }
+    }
+}
+
 pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
     let mut config = RunConfig::from_file(&a.config)?;
     if let Some(n) = a.seed {
@@ -58,6 +93,15 @@ pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
     let run_dir = a
         .run_dir
         .unwrap_or_else(|| default_run_dir("", &a.config, a.seed));
+    let stop_at = config.leg_end(a.until);
+    if let Some(steps) = check_run_dir(&run_dir, a.resume, stop_at)? {
+        // A finished leg run again (a rerun script, a restarted container): nothing to do.
+        println!(
+            "{} is at {steps} agent steps, the end of this leg or budget ({stop_at}): nothing to train",
+            run_dir.display()
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
     let rt = super::runtime(config.runtime.io_threads)?;
     let interrupt = Arc::new(AtomicBool::new(false));
     let summary = rt.block_on(async {

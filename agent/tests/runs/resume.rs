@@ -156,3 +156,61 @@ fn kill_resume_and_ctrl_c() {
     assert_eq!(superseded.lines().count(), before.len() - kept);
     drop(server);
 }
+
+/// `million train` checks the run directory before it starts anything: a new run refuses a
+/// folder holding another run's checkpoints, `--resume` needs one, and a resumed leg already
+/// at its end trains nothing and succeeds (a rerun script, a restarted container).
+#[test]
+fn the_run_directory_is_checked_before_training() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path());
+    let run_dir = dir.path().join("run");
+    let million = |extra: &[&str]| {
+        let out = Command::new(env!("CARGO_BIN_EXE_million"))
+            .arg("train")
+            .arg("--config")
+            .arg(&config)
+            .arg("--run-dir")
+            .arg(&run_dir)
+            .args(extra)
+            .env("RUST_LOG", "warn")
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        (out.status.success(), text)
+    };
+
+    let (ok, text) = million(&["--resume"]);
+    assert!(!ok && text.contains("no checkpoint in"), "{text}");
+
+    // A checkpoint at 5,000 agent steps, as a run would leave it.
+    let cfg = million::run_config::RunConfig::from_file(&config).unwrap();
+    let learner = million::learner::Learner::new(cfg.agent(), tch::Device::Cpu);
+    let path = million::run_dir::checkpoint_path(&run_dir, 5_000);
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    checkpoint::save(
+        &path,
+        &learner,
+        5_000,
+        Default::default(),
+        &Default::default(),
+    )
+    .unwrap();
+
+    let (ok, text) = million(&[]);
+    assert!(!ok, "a new run into another run's folder: {text}");
+    assert!(
+        text.contains("already holds a run") && text.contains("5000"),
+        "{text}"
+    );
+    let (ok, text) = million(&["--resume", "--until", "5000"]);
+    assert!(ok && text.contains("nothing to train"), "{text}");
+    let (ok, text) = million(&["--resume", "--until", "4096"]);
+    assert!(ok && text.contains("nothing to train"), "{text}");
+    assert_eq!(
+        latest_checkpoint(&run_dir).unwrap(),
+        path,
+        "no step trained, no checkpoint written"
+    );
+}
