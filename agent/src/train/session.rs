@@ -156,7 +156,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
         pool,
         evaluators,
         metrics,
-        agent_steps,
+        (agent_steps, start_updates),
     );
     run.local_servers = local_servers;
     let outcome = run.run(&mut learner_thread).await;
@@ -391,11 +391,11 @@ impl<'a> ActorLoop<'a> {
         pool: EnvPool,
         evaluators: Vec<Evaluator>,
         metrics: Option<MetricsWriter>,
-        agent_steps: u64,
+        (agent_steps, updates): (u64, u64),
     ) -> Self {
         let cfg = &opts.config;
         let bar = if opts.progress {
-            let bar = ProgressBar::new(cfg.train.total_agent_steps);
+            let bar = ProgressBar::new(cfg.leg_end(opts.until));
             bar.set_style(
                 ProgressStyle::with_template(
                     "{elapsed_precise} [{bar:30}] {human_pos}/{human_len} steps  {msg}  ETA {eta}",
@@ -429,7 +429,7 @@ impl<'a> ActorLoop<'a> {
             window: SuccessTable::default(),
             returns,
             trials,
-            last_log: (Instant::now(), agent_steps, 0),
+            last_log: (Instant::now(), agent_steps, updates),
             start: Instant::now(),
             cpu_start: thread_cpu_seconds(),
         }
