@@ -16,14 +16,25 @@ from __future__ import annotations
 import argparse
 import json
 import statistics
+import sys
 from pathlib import Path
 
 LAST = 3
 
 
 def records(run: Path) -> list[dict[str, float]]:
-    lines = (run / "metrics.jsonl").read_text().splitlines()
-    return [json.loads(line) for line in lines if line.strip()]
+    """The run's records; a line cut short (a run killed mid-write, a file being written)
+    is skipped with a warning."""
+    rows = []
+    path = run / "metrics.jsonl"
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            rows.append(json.loads(line))
+        except json.JSONDecodeError:
+            print(f"warning: {path}:{number} is not a whole record; skipped", file=sys.stderr)
+    return rows
 
 
 def evaluations(rows: list[dict[str, float]], key: str, at: int | None) -> list[tuple[int, float]]:
@@ -52,8 +63,10 @@ def main() -> None:
     splits = ("train", "test")
     per_split: dict[str, list[float]] = {s: [] for s in splits}
     stochastic: list[float] = []
+    ends: dict[Path, int] = {}
     for run in args.runs:
         rows = records(run)
+        ends[run] = max((int(r["step"]) for r in rows), default=0)
         cells = []
         for split in splits:
             got = last_mean(evaluations(rows, f"eval/{split}/{args.metric}", args.at))
@@ -67,6 +80,13 @@ def main() -> None:
             stochastic.append(statistics.fmean(v for _, v in train))
             cells.append(f"stochastic train {stochastic[-1]:.3f}")
         print(f"{run}: " + "; ".join(cells))
+    if args.at is None and len(set(ends.values())) > 1:
+        print(
+            "warning: the runs end at different steps "
+            f"({', '.join(f'{e:,}' for e in sorted(set(ends.values())))}); --at STEPS compares "
+            "them at one budget",
+            file=sys.stderr,
+        )
     for split, values in per_split.items():
         if values:
             print(
