@@ -10,7 +10,7 @@ use crate::checkpoint;
 use crate::cli::access::EnvAccessArgs;
 use crate::run_config::RunConfig;
 use crate::run_dir::{CHECKPOINTS_DIR, latest_checkpoint};
-use crate::train::session::{TrainOptions, train};
+use crate::train::session::{RUN_CONFIG_KEY, TrainOptions, train};
 
 #[derive(Debug, Args)]
 pub struct TrainArgs {
@@ -54,9 +54,14 @@ pub(super) fn default_run_dir(prefix: &str, config: &Path, seed: Option<u64>) ->
 
 /// Checks the run directory before anything starts: a new run refuses a folder that holds
 /// another run's checkpoints (a later --resume would take the newest, possibly the other
-/// run's); a resumed run needs a checkpoint. Some(steps) when the resumed run has nothing
-/// left to train before `stop_at`.
-fn check_run_dir(run_dir: &Path, resume: bool, stop_at: u64) -> anyhow::Result<Option<u64>> {
+/// run's); a resumed run needs a checkpoint and the settings it started with. Some(steps)
+/// when the resumed run has nothing left to train before `stop_at`.
+fn check_run_dir(
+    run_dir: &Path,
+    config: &RunConfig,
+    resume: bool,
+    stop_at: u64,
+) -> anyhow::Result<Option<u64>> {
     let newest = latest_checkpoint(run_dir).ok();
     let steps = |path: &Path| -> anyhow::Result<u64> {
         Ok(checkpoint::read_meta(path)
@@ -78,10 +83,56 @@ fn check_run_dir(run_dir: &Path, resume: bool, stop_at: u64) -> anyhow::Result<O
             run_dir.join(CHECKPOINTS_DIR).display()
         ),
         (true, Some(path)) => {
-            let at = steps(&path)?;
+            let meta = checkpoint::read_meta(&path)
+                .with_context(|| format!("reading {}", path.display()))?;
+            if let Some(started) = meta.extra.get(RUN_CONFIG_KEY) {
+                let started: toml::Value = toml::from_str(started)
+                    .with_context(|| format!("the run config kept in {}", path.display()))?;
+                let changed = learning_settings_changed(&started, &toml::Value::try_from(config)?);
+                if !changed.is_empty() {
+                    anyhow::bail!(
+                        "--resume: {} was started with other settings of what is learned ({}); \
+                         a run resumed with them would be neither run (was --seed the same?). \
+                         Give a new --run-dir for new settings",
+                        run_dir.display(),
+                        changed.join(", ")
+                    );
+                }
+            }
+            let at = meta.counters.agent_steps;
             Ok((at >= stop_at).then_some(at))
         }
     }
+}
+
+/// Dotted keys whose values differ between the config a run started with and the one it is
+/// resumed with, outside the sections that may change between legs (budget, intervals,
+/// evaluation, machine). A key the older config lacks is a setting added since: not a change.
+fn learning_settings_changed(started: &toml::Value, now: &toml::Value) -> Vec<String> {
+    const MAY_CHANGE: [&str; 3] = ["train", "eval", "runtime"];
+    fn walk(prefix: &str, a: &toml::Value, b: &toml::Value, out: &mut Vec<String>) {
+        match (a, b) {
+            (toml::Value::Table(a), toml::Value::Table(b)) => {
+                for (key, value) in a {
+                    let path = if prefix.is_empty() {
+                        key.clone()
+                    } else {
+                        format!("{prefix}.{key}")
+                    };
+                    match b.get(key) {
+                        Some(other) => walk(&path, value, other, out),
+                        None => out.push(path),
+                    }
+                }
+            }
+            _ if a != b => out.push(prefix.to_owned()),
+            _ => {}
+        }
+    }
+    let mut out = vec![];
+    walk("", started, now, &mut out);
+    out.retain(|key| !MAY_CHANGE.contains(&key.split('.').next().unwrap_or_default()));
+    out
 }
 
 pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
@@ -94,7 +145,7 @@ pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
         .run_dir
         .unwrap_or_else(|| default_run_dir("", &a.config, a.seed));
     let stop_at = config.leg_end(a.until);
-    if let Some(steps) = check_run_dir(&run_dir, a.resume, stop_at)? {
+    if let Some(steps) = check_run_dir(&run_dir, &config, a.resume, stop_at)? {
         // A finished leg run again (a rerun script, a restarted container): nothing to do.
         println!(
             "{} is at {steps} agent steps, the end of this leg or budget ({stop_at}): nothing to train",

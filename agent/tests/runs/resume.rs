@@ -158,8 +158,9 @@ fn kill_resume_and_ctrl_c() {
 }
 
 /// `million train` checks the run directory before it starts anything: a new run refuses a
-/// folder holding another run's checkpoints, `--resume` needs one, and a resumed leg already
-/// at its end trains nothing and succeeds (a rerun script, a restarted container).
+/// folder holding another run's checkpoints, `--resume` needs one and the settings the run
+/// started with, and a resumed leg already at its end trains nothing and succeeds (a rerun
+/// script, a restarted container).
 #[test]
 fn the_run_directory_is_checked_before_training() {
     let dir = tempfile::tempdir().unwrap();
@@ -189,14 +190,12 @@ fn the_run_directory_is_checked_before_training() {
     let learner = million::learner::Learner::new(cfg.agent(), tch::Device::Cpu);
     let path = million::run_dir::checkpoint_path(&run_dir, 5_000);
     std::fs::create_dir_all(path.parent().unwrap()).unwrap();
-    checkpoint::save(
-        &path,
-        &learner,
-        5_000,
-        Default::default(),
-        &Default::default(),
-    )
-    .unwrap();
+    let run_config = [(
+        million::train::session::RUN_CONFIG_KEY.to_owned(),
+        toml::to_string(&cfg).unwrap(),
+    )]
+    .into();
+    checkpoint::save(&path, &learner, 5_000, Default::default(), &run_config).unwrap();
 
     let (ok, text) = million(&[]);
     assert!(!ok, "a new run into another run's folder: {text}");
@@ -208,6 +207,12 @@ fn the_run_directory_is_checked_before_training() {
     assert!(ok && text.contains("nothing to train"), "{text}");
     let (ok, text) = million(&["--resume", "--until", "4096"]);
     assert!(ok && text.contains("nothing to train"), "{text}");
+    // Another replicate's seeds are other settings of what is learned, not another leg.
+    let (ok, text) = million(&["--resume", "--seed", "7"]);
+    assert!(
+        !ok && text.contains("other settings") && text.contains("env.seed"),
+        "{text}"
+    );
     assert_eq!(
         latest_checkpoint(&run_dir).unwrap(),
         path,
