@@ -99,7 +99,12 @@ fn supersede_records_after(path: &Path, kept_through: Option<u64>) -> Result<()>
         .and_then(|mut f| f.write_all(superseded.as_bytes()))
         .with_context(|| format!("cannot write {}", aside.display()))?;
     let tmp = path.with_extension("jsonl.tmp");
-    std::fs::write(&tmp, kept).with_context(|| format!("cannot write {}", tmp.display()))?;
+    File::create(&tmp)
+        .and_then(|mut f| {
+            f.write_all(kept.as_bytes())?;
+            f.sync_all()
+        })
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
     std::fs::rename(&tmp, path).with_context(|| format!("cannot replace {}", path.display()))?;
     tracing::info!(
         lines = superseded.lines().count(),

@@ -5,6 +5,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use anyhow::Context;
 use clap::Args;
+use tokio::signal::unix::SignalKind;
 
 use crate::checkpoint;
 use crate::cli::access::EnvAccessArgs;
@@ -158,7 +159,19 @@ pub fn run(a: TrainArgs) -> anyhow::Result<ExitCode> {
     let summary = rt.block_on(async {
         let flag = interrupt.clone();
         tokio::spawn(async move {
-            if tokio::signal::ctrl_c().await.is_ok() {
+            // Ctrl-C, or SIGTERM (`kill`, a stopped pod whose image sets no stop signal).
+            let mut term = tokio::signal::unix::signal(SignalKind::terminate()).ok();
+            let terminated = async {
+                match term.as_mut() {
+                    Some(t) => t.recv().await,
+                    None => std::future::pending().await,
+                }
+            };
+            let stopped = tokio::select! {
+                r = tokio::signal::ctrl_c() => r.is_ok(),
+                _ = terminated => true,
+            };
+            if stopped {
                 eprintln!("interrupted: finishing the step, writing a final checkpoint");
                 flag.store(true, Ordering::Relaxed);
             }
