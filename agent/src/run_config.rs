@@ -166,7 +166,6 @@ impl RunConfig {
         })
     }
 
-    /// The agent's sections.
     /// Where a leg that stops at `until` (None: the budget) ends, in agent steps.
     pub fn leg_end(&self, until: Option<u64>) -> u64 {
         until.map_or(self.train.total_agent_steps, |u| {
@@ -174,6 +173,7 @@ impl RunConfig {
         })
     }
 
+    /// The agent's sections.
     pub fn agent(&self) -> AgentConfig {
         AgentConfig {
             model: self.model.clone(),

@@ -63,19 +63,19 @@ fn check_run_dir(
     resume: bool,
     stop_at: u64,
 ) -> anyhow::Result<Option<u64>> {
-    let newest = latest_checkpoint(run_dir).ok();
-    let steps = |path: &Path| -> anyhow::Result<u64> {
-        Ok(checkpoint::read_meta(path)
-            .with_context(|| format!("reading {}", path.display()))?
-            .counters
-            .agent_steps)
+    // The newest checkpoint's metadata, read once for whichever check needs it.
+    let newest = match latest_checkpoint(run_dir) {
+        Ok(path) => Some(
+            checkpoint::read_meta(&path).with_context(|| format!("reading {}", path.display()))?,
+        ),
+        Err(_) => None,
     };
     match (resume, newest) {
-        (false, Some(path)) => anyhow::bail!(
+        (false, Some(meta)) => anyhow::bail!(
             "{} already holds a run (newest checkpoint at {} agent steps): add --resume to \
              continue it, or give another --run-dir",
             run_dir.display(),
-            steps(&path)?
+            meta.counters.agent_steps
         ),
         (false, None) => Ok(None),
         (true, None) => anyhow::bail!(
@@ -83,12 +83,10 @@ fn check_run_dir(
              config's name and --seed)",
             run_dir.join(CHECKPOINTS_DIR).display()
         ),
-        (true, Some(path)) => {
-            let meta = checkpoint::read_meta(&path)
-                .with_context(|| format!("reading {}", path.display()))?;
+        (true, Some(meta)) => {
             if let Some(started) = meta.extra.get(RUN_CONFIG_KEY) {
                 let started: toml::Value = toml::from_str(started)
-                    .with_context(|| format!("the run config kept in {}", path.display()))?;
+                    .with_context(|| format!("the run config kept in {}", run_dir.display()))?;
                 let changed = learning_settings_changed(&started, &toml::Value::try_from(config)?);
                 if !changed.is_empty() {
                     anyhow::bail!(
