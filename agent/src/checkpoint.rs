@@ -121,33 +121,19 @@ pub fn save(
     metadata.insert("counters".into(), json(&counters)?);
     metadata.insert("config".into(), json(learner.config())?);
 
-    let dir = path
-        .parent()
-        .filter(|p| !p.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
+    let bytes =
+        safetensors::serialize(views, Some(metadata)).map_err(|e| CheckpointError::Format {
+            path: path.to_owned(),
+            message: e.to_string(),
+        })?;
     let io = |source| CheckpointError::Io {
         path: path.to_owned(),
         source,
     };
-    std::fs::create_dir_all(dir).map_err(io)?;
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}",
-        path.file_name()
-            .and_then(|n| n.to_str())
-            .unwrap_or("checkpoint"),
-        std::process::id()
-    ));
-    safetensors::serialize_to_file(views, Some(metadata), &tmp).map_err(|e| {
-        CheckpointError::Format {
-            path: tmp.clone(),
-            message: e.to_string(),
-        }
-    })?;
-    std::fs::File::open(&tmp)
-        .and_then(|f| f.sync_all())
-        .map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)?;
-    Ok(())
+    if let Some(dir) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(io)?;
+    }
+    crate::run_dir::write_atomically(path, &bytes).map_err(io)
 }
 
 mod erased {

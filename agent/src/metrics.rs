@@ -70,7 +70,7 @@ impl MetricsWriter {
 
 /// Keeps the records of `path` whose step is at most `kept_through` (none when None) and
 /// appends the others, verbatim, to `metrics.superseded.jsonl` beside it. The kept part
-/// is written to a temporary file and renamed over `path`, so a crash loses no record.
+/// replaces `path` atomically, so a crash loses no record.
 fn supersede_records_after(path: &Path, kept_through: Option<u64>) -> Result<()> {
     let text = match std::fs::read_to_string(path) {
         Ok(text) => text,
@@ -98,14 +98,8 @@ fn supersede_records_after(path: &Path, kept_through: Option<u64>) -> Result<()>
         .open(&aside)
         .and_then(|mut f| f.write_all(superseded.as_bytes()))
         .with_context(|| format!("cannot write {}", aside.display()))?;
-    let tmp = path.with_extension("jsonl.tmp");
-    File::create(&tmp)
-        .and_then(|mut f| {
-            f.write_all(kept.as_bytes())?;
-            f.sync_all()
-        })
-        .with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot replace {}", path.display()))?;
+    crate::run_dir::write_atomically(path, kept.as_bytes())
+        .with_context(|| format!("cannot replace {}", path.display()))?;
     tracing::info!(
         lines = superseded.lines().count(),
         file = %aside.display(),

@@ -14,6 +14,7 @@
 //! latest update, per-task maps as `learner/<name>/<task id>`), `cpu/…`, `env/…`, and
 //! `eval/<split>/…` ([`eval`]).
 
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
@@ -53,6 +54,26 @@ pub fn latest_checkpoint(path: &Path) -> anyhow::Result<PathBuf> {
     found
         .pop()
         .with_context(|| format!("no checkpoint files in {}", dir.display()))
+}
+
+/// Writes `bytes` to `path` through a synced temporary file beside it, renamed over `path`:
+/// a crash at any moment leaves the old file or the new one whole, never a part of either.
+pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let dir = path
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("file");
+    let tmp = dir.join(format!(".{name}.tmp-{}", std::process::id()));
+    let written = std::fs::File::create(&tmp).and_then(|mut f| {
+        f.write_all(bytes)?;
+        f.sync_all()
+    });
+    if let Err(e) = written.and_then(|()| std::fs::rename(&tmp, path)) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    Ok(())
 }
 
 /// Whether a logged metric measures the machine (rates, CPU and wait times) rather than the
