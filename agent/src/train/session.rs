@@ -238,8 +238,8 @@ fn new_or_resumed_learner(opts: &TrainOptions) -> anyhow::Result<(Learner, Segme
     Ok((learner, buffer, agent_steps))
 }
 
-/// The training env pool; env i is seeded with `env.seed + i`, shifted by the steps already
-/// taken when a run resumes.
+/// The training env pool; env i is seeded with `env.seed + i`, moved to a seed of its own
+/// when a run resumes ([`crate::run_config::EnvConfig::seed_at`]).
 async fn connect_pool(
     cfg: &RunConfig,
     servers: &[String],
@@ -249,7 +249,7 @@ async fn connect_pool(
     let mut pool_cfg = PoolConfig::new(servers.to_vec(), cfg.env.id.clone(), cfg.env.num_envs);
     pool_cfg.kwargs = cfg.env_kwargs()?;
     pool_cfg.groups = cfg.env.groups;
-    pool_cfg.seed = Some(cfg.env.seed.wrapping_add(agent_steps));
+    pool_cfg.seed = Some(cfg.env.seed_at(agent_steps));
     pool_cfg.autoreset = AutoresetMode::SameStep;
     pool_cfg.client = client.clone();
     EnvPool::connect(pool_cfg)
@@ -595,15 +595,34 @@ impl<'a> ActorLoop<'a> {
     /// `train.stop_at_success`. A failed evaluation (its env servers lost on every attempt)
     /// is skipped, not the end of the run: training has its own pool.
     async fn evaluate(&mut self) -> anyhow::Result<bool> {
+        let reports = self.evaluate_splits(OnEvalFailure::Skip).await?;
+        let stop_at = self.cfg.train.stop_at_success;
+        Ok(reports
+            .iter()
+            .any(|r| r.split == "train" && r.mean >= stop_at))
+    }
+
+    /// Evaluates every split with the actor's weights (the result's); unlike a periodic
+    /// evaluation, a failure here ends the run with an error.
+    async fn final_evaluation(&mut self) -> anyhow::Result<Vec<EvalReport>> {
+        self.evaluate_splits(OnEvalFailure::Fail).await
+    }
+
+    /// Evaluates every split and records each as a point of the curve and in the metrics.
+    async fn evaluate_splits(
+        &mut self,
+        on_failure: OnEvalFailure,
+    ) -> anyhow::Result<Vec<EvalReport>> {
+        let mut reports = vec![];
         let mut s = Scalars::new();
-        let mut reached = false;
         for ev in self.evaluators.iter_mut() {
             let r = match ev.run(&self.model).await {
                 Ok(r) => r,
-                Err(e) => {
+                Err(e) if on_failure == OnEvalFailure::Skip => {
                     tracing::warn!("evaluation at {} steps skipped: {e:#}", self.agent_steps);
                     continue;
                 }
+                Err(e) => return Err(e),
             };
             record_eval(&mut s, &r);
             self.curve.push(CurvePoint::of(
@@ -615,36 +634,23 @@ impl<'a> ActorLoop<'a> {
                 "eval {} at {} steps: success {:.3} (first trials {:.3})",
                 r.split, self.agent_steps, r.mean, r.first_trial
             ));
-            reached |= r.split == "train" && r.mean >= self.cfg.train.stop_at_success;
+            reports.push(r);
         }
-        if let Some(w) = self.metrics.as_mut() {
-            w.write(self.agent_steps, &s)?;
-        }
-        Ok(reached)
-    }
-
-    /// Evaluates every split with the actor's weights (the result's); unlike a periodic
-    /// evaluation, a failure here ends the run with an error.
-    async fn final_evaluation(&mut self) -> anyhow::Result<Vec<EvalReport>> {
-        let mut final_eval = vec![];
-        let mut s = Scalars::new();
-        for ev in self.evaluators.iter_mut() {
-            let r = ev.run(&self.model).await?;
-            record_eval(&mut s, &r);
-            self.curve.push(CurvePoint::of(
-                &r,
-                self.agent_steps,
-                self.start.elapsed().as_secs_f64(),
-            ));
-            final_eval.push(r);
-        }
-        if !final_eval.is_empty()
+        if !reports.is_empty()
             && let Some(w) = self.metrics.as_mut()
         {
             w.write(self.agent_steps, &s)?;
         }
-        Ok(final_eval)
+        Ok(reports)
     }
+}
+
+/// What a failed evaluation does: a periodic one is skipped (the run goes on past a server
+/// that failed once), the final one ends the run with the error.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum OnEvalFailure {
+    Skip,
+    Fail,
 }
 
 /// The scalars of one learner update: `learner/<name>`, and `learner/<name>/<task id>` for
