@@ -64,6 +64,23 @@ impl EnvConfig {
         self.agent_seed = n;
         self.seed = n * REPLICATE_SEED_STRIDE;
     }
+
+    /// The first env seed of a leg that starts at `agent_steps`: `seed` for a new run. A
+    /// resumed leg draws new episodes from `seed` plus 2^40 plus a 40-bit hash of its step,
+    /// where no replicate's first leg seeds and two legs practically never meet; a plain
+    /// `seed + agent_steps` made replicate n resumed at step s draw replicate m's episodes
+    /// whenever s = (m - n) · REPLICATE_SEED_STRIDE, or another leg's at such a distance.
+    pub fn seed_at(&self, agent_steps: u64) -> u64 {
+        if agent_steps == 0 {
+            return self.seed;
+        }
+        // splitmix64's finaliser, kept to 40 bits: seeds stay far below the proto's int64.
+        let mut z = agent_steps.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^= z >> 31;
+        self.seed.wrapping_add((1 << 40) + (z >> 24))
+    }
 }
 
 impl Default for EnvConfig {
@@ -321,6 +338,32 @@ mod tests {
         two.env.replicate(2);
         assert_eq!((two.env.agent_seed, two.env.seed), (2, 20_000));
         assert_eq!(two.eval, base.eval);
+    }
+
+    #[test]
+    fn resumed_legs_never_draw_another_legs_episodes() {
+        // 20 replicates of a 64-env run, resumed at every multiple of 10,000 steps to 2.5 M:
+        // with `seed + steps` replicate 1 at 10,000 steps drew replicate 2's first episodes.
+        let num_envs = 64;
+        let mut first_seeds = vec![];
+        for n in 0..20 {
+            let mut env = RunConfig::from_toml_str("").unwrap().env;
+            env.replicate(n);
+            assert_eq!(env.seed_at(0), env.seed, "a new run keeps its seeds");
+            for steps in (0..=2_500_000).step_by(10_000) {
+                first_seeds.push(env.seed_at(steps));
+            }
+        }
+        first_seeds.sort_unstable();
+        for pair in first_seeds.windows(2) {
+            assert!(
+                pair[1] - pair[0] >= num_envs,
+                "env seeds {} and {} overlap",
+                pair[0],
+                pair[1]
+            );
+        }
+        assert!(*first_seeds.last().unwrap() < 1 << 62);
     }
 
     #[test]
