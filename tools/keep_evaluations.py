@@ -1,0 +1,63 @@
+"""Keeps the curves of runs in the repository: runs/ is not kept, so a result's evidence goes
+where the result's page can point to it.
+
+For each RUN_DIR, writes OUT/<run folder name>/metrics.jsonl with the run's evaluation records
+(`eval/...`) and its stochastic training success (`train/success`), each record keeping its
+`step` and `wall_time`. tools/seed_summary.py and tools/plot_curves.py read the copy as they
+read the run. A few tens of kB per run, where the whole metrics file is a few MB.
+
+Usage: .venv/bin/python tools/keep_evaluations.py RUN_DIR ... --out docs/experiments/data/DATE-NAME
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+KEPT_PREFIXES = ("eval/",)
+KEPT_KEYS = ("step", "wall_time", "train/success")
+
+
+def kept(record: dict[str, object]) -> dict[str, object] | None:
+    """The record's kept part, or None when it holds no evaluation and no training success."""
+    out = {k: v for k, v in record.items() if k in KEPT_KEYS or k.startswith(KEPT_PREFIXES)}
+    if not any(k not in ("step", "wall_time") for k in out):
+        return None
+    return out
+
+
+def keep_run(run: Path, out_dir: Path) -> int:
+    """Writes the kept records of `run`; returns how many."""
+    lines = []
+    path = run / "metrics.jsonl"
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            print(f"warning: {path}:{number} is not a whole record; skipped", file=sys.stderr)
+            continue
+        part = kept(record)
+        if part is not None:
+            lines.append(json.dumps(part, separators=(",", ":")))
+    target = out_dir / run.name
+    target.mkdir(parents=True, exist_ok=True)
+    (target / "metrics.jsonl").write_text("".join(f"{line}\n" for line in lines))
+    return len(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--out", type=Path, required=True, help="folder of the kept curves")
+    args = parser.parse_args()
+    for run in args.runs:
+        n = keep_run(run, args.out)
+        print(f"{run} -> {args.out / run.name / 'metrics.jsonl'}: {n} records")
+
+
+if __name__ == "__main__":
+    main()
