@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
+
+# The same reader as the statistic's: a line cut short is skipped with a warning.
+from seed_summary import records
 
 KEPT_PREFIXES = ("eval/",)
 KEPT_KEYS = ("step", "wall_time", "train/success")
@@ -30,19 +32,11 @@ def kept(record: dict[str, object]) -> dict[str, object] | None:
 
 def keep_run(run: Path, out_dir: Path) -> int:
     """Writes the kept records of `run`; returns how many."""
-    lines = []
-    path = run / "metrics.jsonl"
-    for number, line in enumerate(path.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            record = json.loads(line)
-        except json.JSONDecodeError:
-            print(f"warning: {path}:{number} is not a whole record; skipped", file=sys.stderr)
-            continue
-        part = kept(record)
-        if part is not None:
-            lines.append(json.dumps(part, separators=(",", ":")))
+    lines = [
+        json.dumps(part, separators=(",", ":"))
+        for part in map(kept, records(run))
+        if part is not None
+    ]
     target = out_dir / run.name
     target.mkdir(parents=True, exist_ok=True)
     (target / "metrics.jsonl").write_text("".join(f"{line}\n" for line in lines))
