@@ -97,6 +97,10 @@ pub struct ModelConfig {
     /// every trial step has a gradient path to the goal word (not in the paper; see
     /// `model::instruction` and docs/experiments/2026-12-02-instruction-slots.md).
     pub instruction_words: usize,
+    /// Precision of the linear layers' matrix products: "float32" (the paper) or
+    /// "bfloat16" (about twice the product rate on CPUs with AVX-512 BF16 or AMX; weights,
+    /// gradients and optimiser state stay float32). See `model::dense`.
+    pub matmul_dtype: MatmulDtype,
 }
 
 impl Default for ModelConfig {
@@ -122,6 +126,7 @@ impl Default for ModelConfig {
             min_std: 1e-4,
             obs_norm: vec![],
             instruction_words: 0,
+            matmul_dtype: MatmulDtype::Float32,
         }
     }
 }
@@ -254,6 +259,17 @@ pub struct VmpoConfig {
     /// normalised advantages are smaller than the others' gets little of the policy loss;
     /// `learner/task_psi_mass/<task id>` in the metrics says how much each task gets.
     pub per_task_e_step: bool,
+}
+
+/// Precision of the network's linear layers' matrix products.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum MatmulDtype {
+    /// Float32 throughout: the paper, and the only precision the PyTorch reference checks.
+    #[default]
+    Float32,
+    /// Inputs and weights rounded to bfloat16 for the product; see `model::dense`.
+    Bfloat16,
 }
 
 /// What the decoupled KL terms compare the learned policy with.

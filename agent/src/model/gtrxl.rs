@@ -7,32 +7,33 @@
 //! episode and are masked. Learning (`forward_segment`) and acting (`crate::model::acting`)
 //! derive it from the same rule, so both see exactly the same keys.
 
-use tch::nn::{self, LayerNorm, Linear, Module};
+use tch::nn::{self, LayerNorm, Module};
 use tch::{Device, Kind, Tensor};
 
-use crate::config::ModelConfig;
+use crate::config::{MatmulDtype, ModelConfig};
+use crate::model::dense::Dense;
 
 /// GRU-type gate of GTrXL: `out = (1 − z) ⊙ x + z ⊙ h`.
 #[derive(Debug)]
 pub struct Gate {
     /// W_r, W_z, W_g applied to y in one matrix product.
-    w: Linear,
+    w: Dense,
     /// U_r, U_z applied to x in one matrix product.
-    u_rz: Linear,
-    u_g: Linear,
+    u_rz: Dense,
+    u_g: Dense,
     b_g: Tensor,
 }
 
 impl Gate {
-    pub fn new(p: nn::Path, d: i64, bias_init: f64) -> Self {
+    pub fn new(p: nn::Path, d: i64, bias_init: f64, dtype: MatmulDtype) -> Self {
         let no_bias = nn::LinearConfig {
             bias: false,
             ..Default::default()
         };
         Self {
-            w: nn::linear(&p / "w", d, 3 * d, no_bias),
-            u_rz: nn::linear(&p / "u_rz", d, 2 * d, no_bias),
-            u_g: nn::linear(&p / "u_g", d, d, no_bias),
+            w: Dense::new(&p / "w", d, 3 * d, no_bias, dtype),
+            u_rz: Dense::new(&p / "u_rz", d, 2 * d, no_bias, dtype),
+            u_g: Dense::new(&p / "u_g", d, d, no_bias, dtype),
             b_g: p.var("b_g", &[d], nn::Init::Const(bias_init)),
         }
     }
@@ -58,13 +59,13 @@ impl Gate {
 #[derive(Debug)]
 pub struct GtrxlLayer {
     ln_attn: LayerNorm,
-    q: Linear,
-    kv: Linear,
-    out: Linear,
+    q: Dense,
+    kv: Dense,
+    out: Dense,
     gate_attn: Gate,
     ln_ff: LayerNorm,
-    ff1: Linear,
-    ff2: Linear,
+    ff1: Dense,
+    ff2: Dense,
     gate_ff: Gate,
     /// Learned bias per head and relative distance (query index − key index), `[H, K]`.
     rel_bias: Tensor,
@@ -73,17 +74,19 @@ pub struct GtrxlLayer {
 }
 
 impl GtrxlLayer {
-    fn new(p: nn::Path, d: i64, heads: i64, ff: i64, gate_bias: f64, max_distance: i64) -> Self {
+    fn new(p: nn::Path, cfg: &ModelConfig, max_distance: i64) -> Self {
+        let (d, heads, ff) = (cfg.d_model as i64, cfg.heads as i64, cfg.ff_dim as i64);
+        let (gate_bias, dtype) = (cfg.gate_bias_init, cfg.matmul_dtype);
         Self {
             ln_attn: nn::layer_norm(&p / "ln_attn", vec![d], Default::default()),
-            q: nn::linear(&p / "q", d, d, Default::default()),
-            kv: nn::linear(&p / "kv", d, 2 * d, Default::default()),
-            out: nn::linear(&p / "out", d, d, Default::default()),
-            gate_attn: Gate::new(&p / "gate_attn", d, gate_bias),
+            q: Dense::new(&p / "q", d, d, Default::default(), dtype),
+            kv: Dense::new(&p / "kv", d, 2 * d, Default::default(), dtype),
+            out: Dense::new(&p / "out", d, d, Default::default(), dtype),
+            gate_attn: Gate::new(&p / "gate_attn", d, gate_bias, dtype),
             ln_ff: nn::layer_norm(&p / "ln_ff", vec![d], Default::default()),
-            ff1: nn::linear(&p / "ff1", d, ff, Default::default()),
-            ff2: nn::linear(&p / "ff2", ff, d, Default::default()),
-            gate_ff: Gate::new(&p / "gate_ff", d, gate_bias),
+            ff1: Dense::new(&p / "ff1", d, ff, Default::default(), dtype),
+            ff2: Dense::new(&p / "ff2", ff, d, Default::default(), dtype),
+            gate_ff: Gate::new(&p / "gate_ff", d, gate_bias, dtype),
             rel_bias: p.zeros("rel_bias", &[heads, max_distance]),
             heads,
             d,
@@ -191,16 +194,7 @@ impl Gtrxl {
         let memory_len = cfg.memory_len as i64;
         let max_distance = memory_len + cfg.segment_len as i64;
         let layers = (0..cfg.layers)
-            .map(|i| {
-                GtrxlLayer::new(
-                    &p / format!("layer{i}"),
-                    d,
-                    cfg.heads as i64,
-                    cfg.ff_dim as i64,
-                    cfg.gate_bias_init,
-                    max_distance,
-                )
-            })
+            .map(|i| GtrxlLayer::new(&p / format!("layer{i}"), cfg, max_distance))
             .collect();
         Self {
             layers,

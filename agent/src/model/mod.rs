@@ -3,16 +3,18 @@
 //! policy head and Pop-Art value head (docs/ALGORITHM.md §2).
 
 pub mod acting;
+pub mod dense;
 pub mod gtrxl;
 pub mod instruction;
 pub mod obs_norm;
 pub mod policy;
 pub mod popart;
 
-use tch::nn::{self, LayerNorm, Linear, Module};
+use tch::nn::{self, LayerNorm, Module};
 use tch::{Device, Tensor};
 
 use crate::config::{ModelConfig, PopArtConfig};
+use dense::Dense;
 use gtrxl::Gtrxl;
 use instruction::InstructionPool;
 use obs_norm::ObsNorm;
@@ -27,12 +29,12 @@ pub struct Model {
     /// Running normalisation of the chosen token fields (`model.obs_norm`; None = the paper).
     obs_norm: Option<ObsNorm>,
     input_norm: LayerNorm,
-    input_proj: Linear,
+    input_proj: Dense,
     /// Attention pooling of the instruction slots (None = the paper).
     instruction: Option<InstructionPool>,
     core: Gtrxl,
     policy: PolicyHead,
-    value_hidden: Linear,
+    value_hidden: Dense,
     popart: PopArt,
     device: Device,
 }
@@ -58,7 +60,13 @@ impl Model {
             obs_norm: (!cfg.obs_norm.is_empty())
                 .then(|| ObsNorm::new(p / "obs_norm", &cfg.obs_norm_mask())),
             input_norm: nn::layer_norm(p / "input_norm", vec![obs], Default::default()),
-            input_proj: nn::linear(p / "input_proj", obs, d, Default::default()),
+            input_proj: Dense::new(
+                p / "input_proj",
+                obs,
+                d,
+                Default::default(),
+                cfg.matmul_dtype,
+            ),
             instruction: (cfg.instruction_words > 0).then(|| {
                 InstructionPool::new(
                     &(p / "instruction"),
@@ -74,12 +82,14 @@ impl Model {
                 cfg.policy_hidden as i64,
                 cfg.action_dim as i64,
                 cfg.min_std,
+                cfg.matmul_dtype,
             ),
-            value_hidden: nn::linear(
+            value_hidden: Dense::new(
                 p / "value_hidden",
                 d,
                 cfg.value_hidden as i64,
                 Default::default(),
+                cfg.matmul_dtype,
             ),
             popart: PopArt::new(
                 p / "popart",

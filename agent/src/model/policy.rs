@@ -1,22 +1,37 @@
 //! Gaussian policy head and the diagonal-Gaussian maths V-MPO needs.
 
 use tch::Tensor;
-use tch::nn::{self, Linear, Module};
+use tch::nn::{self, Module};
+
+use crate::model::dense::{Dense, MatmulDtype};
 
 /// Linear(d → hidden) → ReLU → Linear(hidden → 2A); mean = tanh, std = softplus + floor.
 #[derive(Debug)]
 pub struct PolicyHead {
-    hidden: Linear,
-    out: Linear,
+    hidden: Dense,
+    out: Dense,
     action_dim: i64,
     min_std: f64,
 }
 
 impl PolicyHead {
-    pub fn new(p: nn::Path, d: i64, hidden: i64, action_dim: i64, min_std: f64) -> Self {
+    pub fn new(
+        p: nn::Path,
+        d: i64,
+        hidden: i64,
+        action_dim: i64,
+        min_std: f64,
+        dtype: MatmulDtype,
+    ) -> Self {
         Self {
-            hidden: nn::linear(&p / "hidden", d, hidden, Default::default()),
-            out: nn::linear(&p / "out", hidden, 2 * action_dim, Default::default()),
+            hidden: Dense::new(&p / "hidden", d, hidden, Default::default(), dtype),
+            out: Dense::new(
+                &p / "out",
+                hidden,
+                2 * action_dim,
+                Default::default(),
+                dtype,
+            ),
             action_dim,
             min_std,
         }

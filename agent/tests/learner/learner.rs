@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use crate::common::small_agent;
 use million::algo::buffer::{BufferCounters, SegmentBatch};
 use million::checkpoint;
-use million::config::{AgentConfig, KlReference, MultiplierForm};
+use million::config::{AgentConfig, KlReference, MatmulDtype, MultiplierForm};
 use million::learner::Learner;
 use million::model::policy::sample_actions;
 use tch::{Device, Kind, Tensor};
@@ -263,9 +263,11 @@ fn debiased_popart_starts_from_the_first_batch_moments() {
     );
 }
 
-#[test]
-fn the_policy_learns_a_bandit() {
+/// The bandit's learning run: the policy mean's distance to the best action before and after
+/// 300 updates.
+fn learn_the_bandit(matmul_dtype: MatmulDtype) -> (f64, f64) {
     let mut cfg = small_agent(8, 8, 16);
+    cfg.model.matmul_dtype = matmul_dtype;
     cfg.optim.lr = 3e-3;
     // γ = 0: every step is a one-step bandit, so advantages carry no noise from later actions.
     cfg.vmpo.gamma = 0.0;
@@ -281,18 +283,79 @@ fn the_policy_learns_a_bandit() {
             .double_value(&[])
     };
     let start = distance(&l);
-    // 300 updates, not 150: the mean can sit on a plateau near 0.5 (one action coordinate
-    // learned before the other) for a while, and in a CI run on another CPU it was still at
-    // 0.11 after 150. Off the plateau it stays under 0.08 (seeds 1-10 end at 0.013-0.072), so
-    // 0.15 leaves room for other CPUs' rounding and still lies far below the start (~1.5).
     for _ in 0..300 {
         let batch = bandit_batch(&l, 16);
         l.update(&batch).unwrap();
     }
-    let end = distance(&l);
+    (start, distance(&l))
+}
+
+#[test]
+fn the_policy_learns_a_bandit() {
+    // 300 updates, not 150: the mean can sit on a plateau near 0.5 (one action coordinate
+    // learned before the other) for a while, and in a CI run on another CPU it was still at
+    // 0.11 after 150. Off the plateau it stays under 0.08 (seeds 1-10 end at 0.013-0.072), so
+    // 0.15 leaves room for other CPUs' rounding and still lies far below the start (~1.5).
+    let (start, end) = learn_the_bandit(MatmulDtype::Float32);
     assert!(
         end < 0.15 && end < 0.25 * start,
         "distance to the best action {start} → {end}"
+    );
+}
+
+#[test]
+fn the_policy_learns_a_bandit_with_bfloat16_products() {
+    let (start, end) = learn_the_bandit(MatmulDtype::Bfloat16);
+    assert!(
+        end < 0.15 && end < 0.25 * start,
+        "distance to the best action {start} → {end}"
+    );
+}
+
+/// bfloat16 products change an update's arithmetic but not what it computes: from the same
+/// weights and batch, every loss term lies within bfloat16's rounding of float32's, and the
+/// weights move the same way.
+#[test]
+fn an_update_with_bfloat16_products_tracks_float32() {
+    let update = |dtype: MatmulDtype| {
+        let mut cfg = small_agent(8, 8, 16);
+        cfg.model.matmul_dtype = dtype;
+        let mut l = learner(cfg, 5);
+        tch::manual_seed(6);
+        let batch = bandit_batch(&l, 16);
+        let w0 = l.var_store().variables()["policy.out.weight"].copy();
+        let m = l.update(&batch).unwrap();
+        let step = &l.var_store().variables()["policy.out.weight"] - w0;
+        (m, step)
+    };
+    let (exact, exact_step) = update(MatmulDtype::Float32);
+    let (rounded, rounded_step) = update(MatmulDtype::Bfloat16);
+    assert_eq!(exact.policy_steps, rounded.policy_steps);
+    let terms = [
+        ("loss", exact.loss, rounded.loss),
+        ("policy_loss", exact.policy_loss, rounded.policy_loss),
+        ("value_loss", exact.value_loss, rounded.value_loss),
+        ("mean_return", exact.mean_return, rounded.mean_return),
+        ("mean_std", exact.mean_std, rounded.mean_std),
+    ];
+    for (name, a, b) in terms {
+        assert!(
+            (a - b).abs() <= 0.03 * a.abs().max(1e-3),
+            "{name}: float32 {a}, bfloat16 {b}"
+        );
+    }
+    assert!(exact.loss != rounded.loss, "bfloat16 changed nothing");
+    // Adam's first step moves each weight by about ± lr whatever its gradient's size, so
+    // compare directions: the two steps agree in sign almost everywhere.
+    let agree = exact_step
+        .sign()
+        .eq_tensor(&rounded_step.sign())
+        .to_kind(Kind::Float)
+        .mean(Kind::Float)
+        .double_value(&[]);
+    assert!(
+        agree > 0.9,
+        "the steps agree in sign on {agree} of the weights"
     );
 }
 
