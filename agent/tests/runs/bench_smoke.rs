@@ -190,6 +190,37 @@ fn bench_learner_and_acting_run_on_the_quickstart_model() {
         );
     }
     assert!(report["ratio"].as_f64().unwrap() > 0.0, "{against}");
+    // Against another config of the same sizes (bfloat16 products, 2 threads): this build on
+    // both, each side under its own runtime; a config of other sizes is refused.
+    let dir = tempfile::tempdir().unwrap();
+    let quickstart = repo().join("configs/quickstart.toml");
+    let write = |name: &str, body: &str| {
+        let path = dir.path().join(name);
+        let text = format!("base = {:?}\n{body}", quickstart.display().to_string());
+        std::fs::write(&path, text).unwrap();
+        path.display().to_string()
+    };
+    let bf16 = write(
+        "bf16.toml",
+        "[model]\nmatmul_dtype = \"bfloat16\"\n[runtime]\nintra_op_threads = 2\n",
+    );
+    let against = million(
+        &[
+            &learner_args[..],
+            &["--against-config", &bf16, "--against-rounds", "1"],
+        ]
+        .concat(),
+    );
+    assert!(against.contains("bf16.toml"), "{against}");
+    let report: Value = serde_json::from_str(against.lines().last().unwrap()).unwrap();
+    assert!(report["ratio"].as_f64().unwrap() > 0.0, "{against}");
+    let wider = write("wider.toml", "[model]\nff_dim = 512\n");
+    let refused = run_million([&learner_args[..], &["--against-config", &wider]].concat());
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("different sizes"),
+        "{refused:?}"
+    );
     let acting = million(&[
         "bench",
         "acting",

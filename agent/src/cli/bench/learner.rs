@@ -1,8 +1,9 @@
 //! `million bench learner` (without `--reference`): learner updates per second on random
 //! segments of the config's sizes, the multiply-adds an update makes and the rate it reaches,
-//! and with `--against OTHER` another build's learner (an earlier commit's `million`) timed
-//! in alternating rounds on the same machine, so that a change to the learner is measured as
-//! a ratio side by side (BENCHMARKS.md, "Learner").
+//! and with `--against OTHER` another build's learner (an earlier commit's `million`), or with
+//! `--against-config OTHER` this build on another config (say, another `model.matmul_dtype`),
+//! timed in alternating rounds on the same machine, so that a change to the learner is
+//! measured as a ratio side by side (BENCHMARKS.md, "The learner").
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -23,8 +24,13 @@ pub struct AgainstArgs {
     /// the same config is timed in alternating rounds with this one's, and the ratio printed.
     #[arg(long, conflicts_with = "reference")]
     pub against: Option<PathBuf>,
-    /// Rounds per side with --against, the order alternating.
-    #[arg(long, default_value_t = 3, requires = "against")]
+    /// Another config of the same sizes (say, with `model.matmul_dtype = "bfloat16"` or other
+    /// `runtime.intra_op_threads`): this build's learner on it is timed in alternating rounds
+    /// with the `--config` one's, each side under its own runtime settings.
+    #[arg(long, conflicts_with_all = ["reference", "against"])]
+    pub against_config: Option<PathBuf>,
+    /// Rounds per side with --against or --against-config, the order alternating.
+    #[arg(long, default_value_t = 3)]
     pub against_rounds: usize,
 }
 
@@ -110,6 +116,24 @@ struct Against {
     ratio: f64,
 }
 
+/// The other side of a side-by-side timing.
+enum Other {
+    Build(PathBuf),
+    Config(Box<RunConfig>),
+}
+
+impl Other {
+    fn time(&self, config: &Path, device: tch::Device, iters: usize) -> anyhow::Result<f64> {
+        match self {
+            Other::Build(binary) => time_other(binary, config, iters),
+            Other::Config(other) => {
+                other.runtime.apply();
+                time_updates(&other.agent(), device, iters)
+            }
+        }
+    }
+}
+
 pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result<()> {
     if iters == 0 {
         bail!("--iters must be at least 1");
@@ -119,6 +143,21 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
     let agent = cfg.agent();
     let device = cfg.runtime.device();
     let macs = update_multiply_adds(&agent);
+    let other = match (&against.against, &against.against_config) {
+        (Some(binary), _) => Some((Other::Build(binary.clone()), binary)),
+        (None, Some(path)) => {
+            let other = RunConfig::from_file(path)?;
+            if update_multiply_adds(&other.agent()) != macs {
+                bail!(
+                    "{} and {} have different sizes: compare learners on equal work",
+                    config.display(),
+                    path.display()
+                );
+            }
+            Some((Other::Config(Box::new(other)), path))
+        }
+        (None, None) => None,
+    };
     let describe = |rate: f64| {
         format!(
             "{:.3} s/update ({:.2} updates/s, {:.0} learned steps/s, {:.1} G multiply-adds/s)",
@@ -128,7 +167,7 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
             macs * rate / 1e9
         )
     };
-    let Some(other) = &against.against else {
+    let Some((other, other_name)) = other else {
         let rate = time_updates(&agent, device, iters)?;
         println!(
             "learner: {} b={} T={}, {:.0} M multiply-adds per update, {} intra-op threads",
@@ -145,13 +184,17 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
     }
     let load_before = load_average();
     let (mut this, mut that) = (Vec::new(), Vec::new());
+    let time_this = || {
+        cfg.runtime.apply();
+        time_updates(&agent, device, iters)
+    };
     for round in 0..against.against_rounds {
         if round % 2 == 0 {
-            this.push(time_updates(&agent, device, iters)?);
-            that.push(time_other(other, config, iters)?);
+            this.push(time_this()?);
+            that.push(other.time(config, device, iters)?);
         } else {
-            that.push(time_other(other, config, iters)?);
-            this.push(time_updates(&agent, device, iters)?);
+            that.push(other.time(config, device, iters)?);
+            this.push(time_this()?);
         }
     }
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
@@ -168,13 +211,17 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
         fmt(load_average()),
         macs / 1e6
     );
+    let this_name = match other {
+        Other::Build(_) => "this build".to_string(),
+        Other::Config(_) => config.display().to_string(),
+    };
     println!(
-        "  this build   {}",
+        "  {this_name}   {}",
         describe(mean(&result.this_updates_per_s))
     );
     println!(
         "  {}  {}",
-        other.display(),
+        other_name.display(),
         describe(mean(&result.other_updates_per_s))
     );
     println!("  ratio (this ÷ other): {:.3}", result.ratio);
