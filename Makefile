@@ -49,7 +49,7 @@ build: setup
 test: build test-python test-rust
 
 test-python: setup
-	$(PYTHON) -m pytest -q env-server/tests tests/contract tests/deploy tests/lint tests/bench
+	$(PYTHON) -m pytest -q env-server/tests tests/contract tests/deploy tests/lint tests/bench tests/tools
 
 test-rust: build
 	cargo nextest run --cargo-profile $(CARGO_PROFILE) --workspace --no-fail-fast

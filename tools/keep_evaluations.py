@@ -3,8 +3,10 @@ where the result's page can point to it.
 
 For each RUN_DIR, writes OUT/<run folder name>/metrics.jsonl with the run's evaluation records
 (`eval/...`) and its stochastic training success (`train/success`), each record keeping its
-`step` and `wall_time`. tools/seed_summary.py and tools/plot_curves.py read the copy as they
-read the run. A few tens of kB per run, where the whole metrics file is a few MB.
+`step` and `wall_time`, and copies the run's config.toml (what was run). tools/seed_summary.py,
+tools/plot_curves.py and `million report` (which draws the original's logged points for ML10
+and ML45 runs from the config's env id) read the copy as they read the run. A few tens of kB
+per run, where the whole metrics file is a few MB.
 
 Usage: .venv/bin/python tools/keep_evaluations.py RUN_DIR ... --out docs/experiments/data/DATE-NAME
 """
@@ -40,6 +42,9 @@ def keep_run(run: Path, out_dir: Path) -> int:
     target = out_dir / run.name
     target.mkdir(parents=True, exist_ok=True)
     (target / "metrics.jsonl").write_text("".join(f"{line}\n" for line in lines))
+    config = run / "config.toml"
+    if config.is_file():
+        (target / "config.toml").write_text(config.read_text())
     return len(lines)
 
 
