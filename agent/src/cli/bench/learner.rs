@@ -116,17 +116,26 @@ struct Against {
     ratio: f64,
 }
 
-/// The other side of a side-by-side timing.
+/// The other side of a side-by-side timing: another build on the same config, or this build
+/// on another config (and the file it came from).
 enum Other {
     Build(PathBuf),
-    Config(Box<RunConfig>),
+    Config(PathBuf, Box<RunConfig>),
 }
 
 impl Other {
+    /// How the two sides are named in the output: (this side, the other side).
+    fn labels(&self, config: &Path) -> (String, String) {
+        match self {
+            Other::Build(binary) => ("this build".into(), binary.display().to_string()),
+            Other::Config(path, _) => (config.display().to_string(), path.display().to_string()),
+        }
+    }
+
     fn time(&self, config: &Path, device: tch::Device, iters: usize) -> anyhow::Result<f64> {
         match self {
             Other::Build(binary) => time_other(binary, config, iters),
-            Other::Config(other) => {
+            Other::Config(_, other) => {
                 other.runtime.apply();
                 time_updates(&other.agent(), device, iters)
             }
@@ -144,7 +153,7 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
     let device = cfg.runtime.device();
     let macs = update_multiply_adds(&agent);
     let other = match (&against.against, &against.against_config) {
-        (Some(binary), _) => Some((Other::Build(binary.clone()), binary)),
+        (Some(binary), _) => Some(Other::Build(binary.clone())),
         (None, Some(path)) => {
             let other = RunConfig::from_file(path)?;
             if update_multiply_adds(&other.agent()) != macs {
@@ -154,7 +163,7 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
                     path.display()
                 );
             }
-            Some((Other::Config(Box::new(other)), path))
+            Some(Other::Config(path.clone(), Box::new(other)))
         }
         (None, None) => None,
     };
@@ -167,7 +176,7 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
             macs * rate / 1e9
         )
     };
-    let Some((other, other_name)) = other else {
+    let Some(other) = other else {
         let rate = time_updates(&agent, device, iters)?;
         println!(
             "learner: {} b={} T={}, {:.0} M multiply-adds per update, {} intra-op threads",
@@ -211,17 +220,13 @@ pub fn run(config: &Path, iters: usize, against: &AgainstArgs) -> anyhow::Result
         fmt(load_average()),
         macs / 1e6
     );
-    let this_name = match other {
-        Other::Build(_) => "this build".to_string(),
-        Other::Config(_) => config.display().to_string(),
-    };
+    let (this_name, other_name) = other.labels(config);
     println!(
         "  {this_name}   {}",
         describe(mean(&result.this_updates_per_s))
     );
     println!(
-        "  {}  {}",
-        other_name.display(),
+        "  {other_name}  {}",
         describe(mean(&result.other_updates_per_s))
     );
     println!("  ratio (this ÷ other): {:.3}", result.ratio);
