@@ -98,8 +98,8 @@ pub struct ModelConfig {
     /// `model::instruction` and docs/experiments/2026-12-02-instruction-slots.md).
     pub instruction_words: usize,
     /// Precision of the linear layers' matrix products: "float32" (the paper) or
-    /// "bfloat16" (about twice the product rate on CPUs with AVX-512 BF16 or AMX; weights,
-    /// gradients and optimiser state stay float32). See `model::dense`.
+    /// "bfloat16" (weights, gradients and optimiser state stay float32; no faster over a
+    /// whole update on the 2-core machine, and no learning run has used it). See `model::dense`.
     pub matmul_dtype: MatmulDtype,
 }
 

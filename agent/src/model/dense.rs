@@ -1,11 +1,13 @@
 //! Linear layers whose matrix product runs at the configured precision (`model.matmul_dtype`).
 //!
-//! At the recipe's sizes about half of a learner update is matrix products at 88–97 GFLOP/s
-//! in float32 on a 2-core AVX-512 machine; this CPU's bfloat16 products (AVX-512 BF16) run
-//! the same shapes at 169–192 (BENCHMARKS.md, "The learner"). With `bfloat16` a layer casts
-//! its input and weights to bfloat16, multiplies (accumulating in float32 inside the kernel,
-//! the result rounded to bfloat16) and returns float32, as PyTorch's CPU autocast does for
-//! `linear`. Weights, gradients, optimiser state and everything element-wise stay float32.
+//! At the recipe's sizes about half of a learner update is matrix products, and this CPU's
+//! bfloat16 products (AVX-512 BF16) run their shapes at about twice float32's rate. With
+//! `bfloat16` a layer casts its input and weights to bfloat16, multiplies (accumulating in
+//! float32 inside the kernel, the result rounded to bfloat16) and returns float32, as
+//! PyTorch's CPU autocast does for `linear`. Weights, gradients, optimiser state and
+//! everything element-wise stay float32. On the 2-core machine a whole update is no faster
+//! for it (0.99–1.05×: the casts and their allocations take back what the products save;
+//! BENCHMARKS.md, "The learner"), so float32 stays the default.
 
 use tch::nn::{self, Linear, LinearConfig, Module};
 use tch::{Kind, Tensor};
