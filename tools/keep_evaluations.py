@@ -8,13 +8,21 @@ tools/plot_curves.py and `million report` (which draws the original's logged poi
 and ML45 runs from the config's env id) read the copy as they read the run. A few tens of kB
 per run, where the whole metrics file is a few MB.
 
+With --checkpoint it also keeps the run's newest checkpoint (checkpoints/step-*.safetensors,
+about 7 MB at ML10's sizes), which makes the copy a run folder that `million train --resume`
+continues: a run longer than one working period is handed over that way (copy the folder
+back under runs/, resume it with the same config and seed), and the hand-over's checkpoint
+is removed once the run has finished.
+
 Usage: .venv/bin/python tools/keep_evaluations.py RUN_DIR ... --out docs/experiments/data/DATE-NAME
+       [--checkpoint]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from pathlib import Path
 
 # The same reader as the statistic's: a line cut short is skipped with a warning.
@@ -32,8 +40,17 @@ def kept(record: dict[str, object]) -> dict[str, object] | None:
     return out
 
 
-def keep_run(run: Path, out_dir: Path) -> int:
-    """Writes the kept records of `run`; returns how many."""
+def newest_checkpoint(run: Path) -> Path:
+    """The run's newest checkpoint (names sort by step, as `million train --resume` reads them)."""
+    found = sorted((run / "checkpoints").glob("step-*.safetensors"))
+    if not found:
+        raise SystemExit(f"{run}: no checkpoints/step-*.safetensors to keep")
+    return found[-1]
+
+
+def keep_run(run: Path, out_dir: Path, checkpoint: bool = False) -> int:
+    """Writes the kept records of `run` (and, with `checkpoint`, its newest checkpoint in
+    place of any kept before); returns how many records."""
     lines = [
         json.dumps(part, separators=(",", ":"))
         for part in map(kept, records(run))
@@ -44,7 +61,15 @@ def keep_run(run: Path, out_dir: Path) -> int:
     (target / "metrics.jsonl").write_text("".join(f"{line}\n" for line in lines))
     config = run / "config.toml"
     if config.is_file():
-        (target / "config.toml").write_text(config.read_text())
+        shutil.copyfile(config, target / "config.toml")
+    if checkpoint:
+        source = newest_checkpoint(run)
+        kept_dir = target / "checkpoints"
+        kept_dir.mkdir(exist_ok=True)
+        for older in kept_dir.glob("step-*.safetensors"):
+            if older.name != source.name:
+                older.unlink()
+        shutil.copyfile(source, kept_dir / source.name)
     return len(lines)
 
 
@@ -52,9 +77,14 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, required=True, help="folder of the kept curves")
+    parser.add_argument(
+        "--checkpoint",
+        action="store_true",
+        help="also keep the newest checkpoint, so the copy can be resumed later",
+    )
     args = parser.parse_args()
     for run in args.runs:
-        n = keep_run(run, args.out)
+        n = keep_run(run, args.out, args.checkpoint)
         print(f"{run} -> {args.out / run.name / 'metrics.jsonl'}: {n} records")
 
 

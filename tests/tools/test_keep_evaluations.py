@@ -70,3 +70,43 @@ def test_the_kept_copy_holds_evaluations_success_and_config(tmp_path: Path) -> N
     on_copy = _tool("seed_summary.py", kept).stdout.replace(str(kept), "RUN")
     assert on_run == on_copy
     assert "0.8" in on_copy
+
+
+def test_a_kept_checkpoint_is_the_newest_and_replaces_the_last_hand_over(
+    tmp_path: Path,
+) -> None:
+    run = tmp_path / "ml10-seed2"
+    _write_run(run)
+    checkpoints = run / "checkpoints"
+    checkpoints.mkdir()
+    for step, body in ((500_000, b"older"), (1_000_000, b"newest")):
+        (checkpoints / f"step-{step:015}.safetensors").write_bytes(body)
+    out = tmp_path / "kept"
+    _tool("keep_evaluations.py", run, "--out", out, "--checkpoint")
+    kept = out / "ml10-seed2" / "checkpoints"
+    assert [p.name for p in kept.iterdir()] == ["step-000000001000000.safetensors"]
+    assert (kept / "step-000000001000000.safetensors").read_bytes() == b"newest"
+
+    # The next hand-over keeps the run's newer checkpoint in place of this one.
+    (checkpoints / "step-000000001500000.safetensors").write_bytes(b"later")
+    _tool("keep_evaluations.py", run, "--out", out, "--checkpoint")
+    assert [p.name for p in kept.iterdir()] == ["step-000000001500000.safetensors"]
+
+    # Without a checkpoint to keep, the tool says so instead of handing over nothing.
+    for path in checkpoints.iterdir():
+        path.unlink()
+    failed = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "tools" / "keep_evaluations.py"),
+            run,
+            "--out",
+            out,
+            "--checkpoint",
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+    )
+    assert failed.returncode != 0
+    assert "no checkpoints/step-*.safetensors" in failed.stderr
