@@ -329,7 +329,8 @@ pub struct BufferConfig {
     /// How the learner keeps pace with the actors (train/learner_loop.rs). "lockstep": the
     /// learner makes exactly the updates `replay_ratio` allows after each batch of segments
     /// and the actors wait for it, one round of segments behind, so a seed's run is the same
-    /// on any machine at any load. "free": neither waits (speed benchmarks only; updates per
+    /// at any speed and load (number for number on one kind of CPU). "free": neither waits
+    /// (speed benchmarks only; updates per
     /// agent step then follow the machine's load).
     pub pacing: Pacing,
     /// The learner starts once the buffer holds this many segments (at least `batch_segments`).

@@ -11,7 +11,8 @@
 //!   waits until the learner has finished every update due for the rounds before the last
 //!   one, and acts with the weights published by then. The learner works on the last round
 //!   while the actor collects the next, so the two overlap, yet every update samples the
-//!   same buffer and every round acts with the same weights on any machine, at any load.
+//!   same buffer and every round acts with the same weights at any speed and load (the same
+//!   numbers on one kind of CPU; MKL's kernels, chosen by CPU, round differently on others).
 //! - `free`: the learner updates whenever the replay-ratio ceiling allows and the actor never
 //!   waits; updates per agent step follow the machine's speed (throughput benchmarks).
 
@@ -302,7 +303,7 @@ impl LearnerLink {
     }
 
     /// Takes every report already waiting (free pacing; lockstep reads only what a round
-    /// needs, so that what it logs is the same on every machine).
+    /// needs, so that what it logs is the same at any speed and load).
     fn drain(&mut self) {
         while let Ok(report) = self.reports.try_recv() {
             self.take(report);

@@ -5,7 +5,7 @@
 //! first trials: the words reach the policy through the memory.
 //!
 //! Real parts throughout: a local million-env-server, the gRPC env pool, libtorch. Lockstep
-//! pacing makes the run the same on any machine, so the budget is in agent steps; the wall
+//! pacing makes the run the same at any speed and load, so the budget is in agent steps; the wall
 //! time is only a guard against a hung run. Runs alone (nextest test group `learning`).
 
 use std::path::Path;

@@ -1,6 +1,6 @@
 //! Lockstep pacing (`buffer.pacing = "lockstep"`, the default): the learner makes exactly the
-//! updates the replay ratio allows and the actor waits for it, so a seed's run is the same on
-//! any machine. Real quickstart runs: a local env server, PointGoal, libtorch.
+//! updates the replay ratio allows and the actor waits for it, so a seed's run is the same at
+//! any speed and load. Real quickstart runs: a local env server, PointGoal, libtorch.
 
 use std::path::Path;
 

@@ -99,6 +99,10 @@ fn random_batch(cfg: &AgentConfig, b: i64) -> SegmentBatch {
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
+    // On stderr, so that a bench's JSON on stdout stays whole.
+    if let Some(cpu) = cpu_description() {
+        eprintln!("machine: {cpu}");
+    }
     match cmd {
         BenchCommand::Learner {
             bench: b,
@@ -217,6 +221,33 @@ fn load_average() -> Option<f64> {
         .ok()
 }
 
+/// The CPU a timing was taken on: its name, how many logical cores this process sees and its
+/// widest vector instructions. Timings compare only between like CPUs (the 2-core machine is
+/// not always the same kind), and MKL picks its matrix kernels by them.
+fn cpu_description() -> Option<String> {
+    describe_cpu(&std::fs::read_to_string("/proc/cpuinfo").ok()?)
+}
+
+fn describe_cpu(cpuinfo: &str) -> Option<String> {
+    let field = |name: &str| {
+        cpuinfo.lines().find_map(|line| {
+            let (key, value) = line.split_once(':')?;
+            (key.trim() == name).then(|| value.trim().to_owned())
+        })
+    };
+    let model = field("model name")?;
+    let flags = field("flags").unwrap_or_default();
+    let has = |flag: &str| flags.split_whitespace().any(|f| f == flag);
+    let vectors = match (has("avx512f"), has("avx512_bf16"), has("avx2")) {
+        (true, true, _) => "AVX-512 with BF16",
+        (true, false, _) => "AVX-512",
+        (false, _, true) => "AVX2, no AVX-512",
+        _ => "no AVX2",
+    };
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    Some(format!("{model}, {cores} cores, {vectors}"))
+}
+
 /// The Python that runs a bench's Python side: `explicit` (`--python`), else the
 /// repository's `.venv/bin/python`, else `python3` on PATH.
 fn python(explicit: Option<&Path>) -> PathBuf {
@@ -224,4 +255,26 @@ fn python(explicit: Option<&Path>) -> PathBuf {
         .map(Path::to_path_buf)
         .or_else(|| million_env::find_in_repository(Path::new(".venv/bin/python")))
         .unwrap_or_else(|| "python3".into())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::describe_cpu;
+
+    #[test]
+    fn the_cpu_is_named_with_its_widest_vector_instructions() {
+        let cpu = |flags: &str| {
+            let info = format!(
+                "processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu {flags} sse2\n\n\
+                 processor\t: 1\nmodel name\t: AMD EPYC\nflags\t\t: fpu {flags} sse2\n"
+            );
+            describe_cpu(&info).unwrap()
+        };
+        assert!(cpu("avx2 avx512f avx512_bf16").ends_with("AVX-512 with BF16"));
+        assert!(cpu("avx2 avx512f").ends_with("AVX-512"));
+        assert!(cpu("avx avx2 fma").ends_with("AVX2, no AVX-512"));
+        assert!(cpu("avx").ends_with("no AVX2"));
+        assert!(cpu("avx2").starts_with("AMD EPYC, "));
+        assert_eq!(describe_cpu("processor\t: 0\n"), None);
+    }
 }
