@@ -10,9 +10,12 @@ per run, where the whole metrics file is a few MB.
 
 With --checkpoint it also keeps the run's newest checkpoint (checkpoints/step-*.safetensors,
 about 7 MB at ML10's sizes), which makes the copy a run folder that `million train --resume`
-continues: a run longer than one working period is handed over that way (copy the folder
-back under runs/, resume it with the same config and seed), and the hand-over's checkpoint
-is removed once the run has finished.
+continues: a run that has to stop before its budget (runs/ is not kept in the repository, and
+a lent machine is lent for a time) is carried on that way from OUT/<name>, copied back to
+runs/<name> and resumed with the same config and seed. The resumed run's metrics.jsonl then
+holds only these records before the resume step. Keeping the run again without --checkpoint,
+once it has finished, removes the carried checkpoint from OUT (it stays in git's history:
+each one carried adds its size to the repository for good).
 
 Usage: .venv/bin/python tools/keep_evaluations.py RUN_DIR ... --out docs/experiments/data/DATE-NAME
        [--checkpoint]
@@ -49,26 +52,31 @@ def newest_checkpoint(run: Path) -> Path:
 
 
 def keep_run(run: Path, out_dir: Path, checkpoint: bool = False) -> int:
-    """Writes the kept records of `run` (and, with `checkpoint`, its newest checkpoint in
-    place of any kept before); returns how many records."""
+    """Writes the kept records of `run` and, with `checkpoint`, its newest checkpoint in place
+    of any carried before (without it, removes any carried before); returns how many records."""
+    target = out_dir / run.name
+    if target.resolve() == run.resolve():
+        raise SystemExit(f"{run}: the kept copy would be the run itself; name another --out")
+    source = newest_checkpoint(run) if checkpoint else None
     lines = [
         json.dumps(part, separators=(",", ":"))
         for part in map(kept, records(run))
         if part is not None
     ]
-    target = out_dir / run.name
     target.mkdir(parents=True, exist_ok=True)
     (target / "metrics.jsonl").write_text("".join(f"{line}\n" for line in lines))
     config = run / "config.toml"
     if config.is_file():
         shutil.copyfile(config, target / "config.toml")
-    if checkpoint:
-        source = newest_checkpoint(run)
-        kept_dir = target / "checkpoints"
+    kept_dir = target / "checkpoints"
+    for older in kept_dir.glob("step-*.safetensors"):
+        if source is None or older.name != source.name:
+            older.unlink()
+            print(f"removed the carried checkpoint {older}")
+    if source is None and kept_dir.is_dir() and not any(kept_dir.iterdir()):
+        kept_dir.rmdir()
+    if source is not None:
         kept_dir.mkdir(exist_ok=True)
-        for older in kept_dir.glob("step-*.safetensors"):
-            if older.name != source.name:
-                older.unlink()
         shutil.copyfile(source, kept_dir / source.name)
     return len(lines)
 
@@ -83,6 +91,10 @@ def main() -> None:
         help="also keep the newest checkpoint, so the copy can be resumed later",
     )
     args = parser.parse_args()
+    if args.checkpoint:
+        # Every run's checkpoint is found before anything is written.
+        for run in args.runs:
+            newest_checkpoint(run)
     for run in args.runs:
         n = keep_run(run, args.out, args.checkpoint)
         print(f"{run} -> {args.out / run.name / 'metrics.jsonl'}: {n} records")

@@ -330,8 +330,7 @@ pub struct BufferConfig {
     /// learner makes exactly the updates `replay_ratio` allows after each batch of segments
     /// and the actors wait for it, one round of segments behind, so a seed's run is the same
     /// at any speed and load (number for number on one kind of CPU). "free": neither waits
-    /// (speed benchmarks only; updates per
-    /// agent step then follow the machine's load).
+    /// (speed benchmarks only; updates per agent step then follow the machine's load).
     pub pacing: Pacing,
     /// The learner starts once the buffer holds this many segments (at least `batch_segments`).
     pub min_segments: usize,

@@ -77,7 +77,8 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 }
 
 /// Whether a logged metric measures the machine (rates, CPU and wait times) rather than the
-/// run: everything else is the same for two lockstep runs of one config and seed.
+/// run: everything else is the same for two lockstep runs of one config and seed on one kind
+/// of CPU.
 pub fn depends_on_the_machine(name: &str) -> bool {
     name.ends_with("_per_s") || name.starts_with("cpu/") || name.ends_with("_wait_s")
 }

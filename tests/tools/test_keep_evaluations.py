@@ -92,7 +92,12 @@ def test_a_kept_checkpoint_is_the_newest_and_replaces_the_last_hand_over(
     _tool("keep_evaluations.py", run, "--out", out, "--checkpoint")
     assert [p.name for p in kept.iterdir()] == ["step-000000001500000.safetensors"]
 
-    # Without a checkpoint to keep, the tool says so instead of handing over nothing.
+    # Kept again once the run has finished, without --checkpoint: the carried one goes.
+    _tool("keep_evaluations.py", run, "--out", out)
+    assert not kept.exists()
+
+    # Without a checkpoint to keep, the tool says so before it writes anything.
+    (out / "ml10-seed2" / "metrics.jsonl").write_text("")
     for path in checkpoints.iterdir():
         path.unlink()
     failed = subprocess.run(
@@ -110,3 +115,4 @@ def test_a_kept_checkpoint_is_the_newest_and_replaces_the_last_hand_over(
     )
     assert failed.returncode != 0
     assert "no checkpoints/step-*.safetensors" in failed.stderr
+    assert (out / "ml10-seed2" / "metrics.jsonl").read_text() == ""

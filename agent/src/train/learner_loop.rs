@@ -12,7 +12,8 @@
 //!   one, and acts with the weights published by then. The learner works on the last round
 //!   while the actor collects the next, so the two overlap, yet every update samples the
 //!   same buffer and every round acts with the same weights at any speed and load (the same
-//!   numbers on one kind of CPU; MKL's kernels, chosen by CPU, round differently on others).
+//!   numbers on one kind of CPU; the matrix kernels, chosen by CPU, round differently on
+//!   others).
 //! - `free`: the learner updates whenever the replay-ratio ceiling allows and the actor never
 //!   waits; updates per agent step follow the machine's speed (throughput benchmarks).
 

@@ -77,6 +77,8 @@ struct Report {
     cases: Vec<Case>,
     latency: Option<Latency>,
     load_average_before: Option<f64>,
+    /// The CPU, as `million bench` prints it: timings compare between like CPUs only.
+    machine: Option<String>,
 }
 
 pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
@@ -134,6 +136,7 @@ pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
         cases,
         latency,
         load_average_before,
+        machine: super::cpu_description(),
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

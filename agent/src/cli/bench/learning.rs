@@ -4,8 +4,8 @@
 //! success ≥ 0.8 within 2.5 M agent steps, first trials ≥ 0.3 above the no-instructions
 //! ablation) take longer than CI allows, so they are a bench that is run and recorded
 //! (RESULTS.md), not a test. It trains the config for `--steps` agent steps (default: the
-//! config's `train.total_agent_steps`; lockstep pacing makes that the same run at any speed and load;
-//! local env servers, deterministic
+//! config's `train.total_agent_steps`; lockstep pacing makes that the same run at any speed
+//! and load; local env servers, deterministic
 //! evaluations at the config's `eval_interval` and at the end), then, with `--ablation`, the
 //! ablation config for the same agent steps, evaluated at the same steps. It reports when each
 //! split first reached its target (agent steps, and minutes for information), each split's

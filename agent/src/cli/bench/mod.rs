@@ -156,6 +156,8 @@ struct TrainBenchReport {
     learner_thread_cpu_share: f64,
     agent: ProcessUsage,
     env_servers: Vec<ProcessUsage>,
+    /// The CPU it ran on (timings compare between like CPUs only).
+    machine: Option<String>,
 }
 
 fn train_bench(b: TrainBench) -> anyhow::Result<()> {
@@ -180,6 +182,7 @@ fn train_bench(b: TrainBench) -> anyhow::Result<()> {
         learner_thread_cpu_share: summary.learner_cpu_s / summary.wall_s,
         agent,
         env_servers,
+        machine: cpu_description(),
     };
     if b.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -221,10 +224,10 @@ fn load_average() -> Option<f64> {
         .ok()
 }
 
-/// The CPU a timing was taken on: its name, how many logical cores this process sees and its
-/// widest vector instructions. Timings compare only between like CPUs (the 2-core machine is
+/// The CPU a timing was taken on: its name and generation, how many logical cores this
+/// process may use and its widest vector instructions. Timings compare only between like CPUs (the 2-core machine is
 /// not always the same kind), and MKL picks its matrix kernels by them.
-fn cpu_description() -> Option<String> {
+pub(super) fn cpu_description() -> Option<String> {
     describe_cpu(&std::fs::read_to_string("/proc/cpuinfo").ok()?)
 }
 
@@ -236,6 +239,13 @@ fn describe_cpu(cpuinfo: &str) -> Option<String> {
         })
     };
     let model = field("model name")?;
+    // Virtual machines often name every CPU of a vendor alike ("AMD EPYC"): the family and
+    // model numbers and the clock tell generations apart.
+    let numbers =
+        ["cpu family", "model", "stepping"].map(|name| field(name).unwrap_or_else(|| "?".into()));
+    let clock = field("cpu MHz")
+        .and_then(|mhz| mhz.parse::<f64>().ok())
+        .map_or(String::new(), |mhz| format!(", {:.2} GHz", mhz / 1e3));
     let flags = field("flags").unwrap_or_default();
     let has = |flag: &str| flags.split_whitespace().any(|f| f == flag);
     let vectors = match (has("avx512f"), has("avx512_bf16"), has("avx2")) {
@@ -245,7 +255,11 @@ fn describe_cpu(cpuinfo: &str) -> Option<String> {
         _ => "no AVX2",
     };
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    Some(format!("{model}, {cores} cores, {vectors}"))
+    let [family, number, stepping] = numbers;
+    Some(format!(
+        "{model} (family {family} model {number} stepping {stepping}{clock}), {cores} logical \
+         cores, {vectors}"
+    ))
 }
 
 /// The Python that runs a bench's Python side: `explicit` (`--python`), else the
@@ -265,8 +279,10 @@ mod tests {
     fn the_cpu_is_named_with_its_widest_vector_instructions() {
         let cpu = |flags: &str| {
             let info = format!(
-                "processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: fpu {flags} sse2\n\n\
-                 processor\t: 1\nmodel name\t: AMD EPYC\nflags\t\t: fpu {flags} sse2\n"
+                "processor\t: 0\ncpu family\t: 25\nmodel\t\t: 1\nmodel name\t: AMD EPYC\n\
+                 stepping\t: 1\ncpu MHz\t\t: 2445.402\nflags\t\t: fpu {flags} sse2\n\n\
+                 processor\t: 1\ncpu family\t: 25\nmodel\t\t: 1\nmodel name\t: AMD EPYC\n\
+                 stepping\t: 1\ncpu MHz\t\t: 2445.402\nflags\t\t: fpu {flags} sse2\n"
             );
             describe_cpu(&info).unwrap()
         };
@@ -274,7 +290,11 @@ mod tests {
         assert!(cpu("avx2 avx512f").ends_with("AVX-512"));
         assert!(cpu("avx avx2 fma").ends_with("AVX2, no AVX-512"));
         assert!(cpu("avx").ends_with("no AVX2"));
-        assert!(cpu("avx2").starts_with("AMD EPYC, "));
+        assert!(
+            cpu("avx2").starts_with("AMD EPYC (family 25 model 1 stepping 1, 2.45 GHz), "),
+            "{}",
+            cpu("avx2")
+        );
         assert_eq!(describe_cpu("processor\t: 0\n"), None);
     }
 }
