@@ -28,6 +28,7 @@ pub mod config;
 pub mod font;
 pub mod heap;
 pub mod learner;
+pub mod machine;
 pub mod metrics;
 pub mod model;
 pub mod optim;

@@ -35,6 +35,8 @@ const TARGET_REACHED: &str = "target success reached";
 
 /// Metadata key under which checkpoints keep the full run config (TOML).
 pub const RUN_CONFIG_KEY: &str = "run_config";
+/// Metadata key of the CPU a checkpoint was written on ([`crate::machine::cpu_description`]).
+pub const CPU_KEY: &str = "cpu";
 
 pub struct TrainOptions {
     pub config: RunConfig,
@@ -147,6 +149,9 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let metrics = open_run_dir(&opts, agent_steps)?;
     let mut extra = HashMap::new();
     extra.insert(RUN_CONFIG_KEY.to_owned(), toml::to_string(&cfg)?);
+    if let Some(cpu) = crate::machine::cpu_description() {
+        extra.insert(CPU_KEY.to_owned(), cpu);
+    }
     let mut learner_thread = LearnerThread::spawn(learner, buffer, &cfg, extra.clone())?;
 
     let mut run = ActorLoop::new(
@@ -235,7 +240,25 @@ fn new_or_resumed_learner(opts: &TrainOptions) -> anyhow::Result<(Learner, Segme
     buffer.restore_counters(meta.counters.buffer);
     let agent_steps = meta.counters.agent_steps;
     tracing::info!(checkpoint = %path.display(), agent_steps, updates = learner.updates(), "resumed");
+    if let Some(note) = another_cpu(
+        meta.extra.get(CPU_KEY).map(String::as_str),
+        crate::machine::cpu_description().as_deref(),
+    ) {
+        tracing::warn!("{note}");
+    }
     Ok((learner, buffer, agent_steps))
+}
+
+/// What to tell a user who resumes a run on another kind of CPU than its checkpoint's: the
+/// run goes on, but repeats number for number only on the CPUs each leg ran on.
+fn another_cpu(checkpoint: Option<&str>, here: Option<&str>) -> Option<String> {
+    match (checkpoint, here) {
+        (Some(then), Some(now)) if then != now => Some(format!(
+            "resumed on another kind of CPU (checkpoint: {then}; here: {now}): the run goes on, \
+             but repeats number for number only on the CPUs its legs ran on"
+        )),
+        _ => None,
+    }
 }
 
 /// The training env pool; env i is seeded with `env.seed + i`, moved to a seed of its own
@@ -690,5 +713,22 @@ fn record_eval(s: &mut Scalars, r: &EvalReport) {
     s.insert(eval::episode_return(split), r.mean_return);
     for (task, v) in &r.per_task {
         s.insert(format!("{}{task}", eval::task_prefix(split)), *v);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::another_cpu;
+
+    #[test]
+    fn a_resume_on_another_kind_of_cpu_is_told() {
+        let zen3 = "AMD EPYC (family 25 model 1 stepping 1), 2 logical cores, AVX2, no AVX-512";
+        let zen4 = "AMD EPYC (family 25 model 17 stepping 1), 2 logical cores, AVX-512 with BF16";
+        let note = another_cpu(Some(zen4), Some(zen3)).expect("another CPU is told");
+        assert!(note.contains(zen4) && note.contains(zen3), "{note}");
+        assert_eq!(another_cpu(Some(zen3), Some(zen3)), None);
+        // Checkpoints written before the CPU was recorded, or a machine that names none.
+        assert_eq!(another_cpu(None, Some(zen3)), None);
+        assert_eq!(another_cpu(Some(zen3), None), None);
     }
 }

@@ -136,7 +136,7 @@ pub fn run(args: &EnvBench) -> anyhow::Result<ExitCode> {
         cases,
         latency,
         load_average_before,
-        machine: super::cpu_description(),
+        machine: crate::machine::cpu_description(),
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);

@@ -100,7 +100,7 @@ fn random_batch(cfg: &AgentConfig, b: i64) -> SegmentBatch {
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<ExitCode> {
     // On stderr, so that a bench's JSON on stdout stays whole.
-    if let Some(cpu) = cpu_description() {
+    if let Some(cpu) = crate::machine::cpu_description() {
         eprintln!("machine: {cpu}");
     }
     match cmd {
@@ -182,7 +182,7 @@ fn train_bench(b: TrainBench) -> anyhow::Result<()> {
         learner_thread_cpu_share: summary.learner_cpu_s / summary.wall_s,
         agent,
         env_servers,
-        machine: cpu_description(),
+        machine: crate::machine::cpu_description(),
     };
     if b.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -224,44 +224,6 @@ fn load_average() -> Option<f64> {
         .ok()
 }
 
-/// The CPU a timing was taken on: its name and generation, how many logical cores this
-/// process may use and its widest vector instructions. Timings compare only between like CPUs (the 2-core machine is
-/// not always the same kind), and MKL picks its matrix kernels by them.
-pub(super) fn cpu_description() -> Option<String> {
-    describe_cpu(&std::fs::read_to_string("/proc/cpuinfo").ok()?)
-}
-
-fn describe_cpu(cpuinfo: &str) -> Option<String> {
-    let field = |name: &str| {
-        cpuinfo.lines().find_map(|line| {
-            let (key, value) = line.split_once(':')?;
-            (key.trim() == name).then(|| value.trim().to_owned())
-        })
-    };
-    let model = field("model name")?;
-    // Virtual machines often name every CPU of a vendor alike ("AMD EPYC"): the family and
-    // model numbers and the clock tell generations apart.
-    let numbers =
-        ["cpu family", "model", "stepping"].map(|name| field(name).unwrap_or_else(|| "?".into()));
-    let clock = field("cpu MHz")
-        .and_then(|mhz| mhz.parse::<f64>().ok())
-        .map_or(String::new(), |mhz| format!(", {:.2} GHz", mhz / 1e3));
-    let flags = field("flags").unwrap_or_default();
-    let has = |flag: &str| flags.split_whitespace().any(|f| f == flag);
-    let vectors = match (has("avx512f"), has("avx512_bf16"), has("avx2")) {
-        (true, true, _) => "AVX-512 with BF16",
-        (true, false, _) => "AVX-512",
-        (false, _, true) => "AVX2, no AVX-512",
-        _ => "no AVX2",
-    };
-    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
-    let [family, number, stepping] = numbers;
-    Some(format!(
-        "{model} (family {family} model {number} stepping {stepping}{clock}), {cores} logical \
-         cores, {vectors}"
-    ))
-}
-
 /// The Python that runs a bench's Python side: `explicit` (`--python`), else the
 /// repository's `.venv/bin/python`, else `python3` on PATH.
 fn python(explicit: Option<&Path>) -> PathBuf {
@@ -269,32 +231,4 @@ fn python(explicit: Option<&Path>) -> PathBuf {
         .map(Path::to_path_buf)
         .or_else(|| million_env::find_in_repository(Path::new(".venv/bin/python")))
         .unwrap_or_else(|| "python3".into())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::describe_cpu;
-
-    #[test]
-    fn the_cpu_is_named_with_its_widest_vector_instructions() {
-        let cpu = |flags: &str| {
-            let info = format!(
-                "processor\t: 0\ncpu family\t: 25\nmodel\t\t: 1\nmodel name\t: AMD EPYC\n\
-                 stepping\t: 1\ncpu MHz\t\t: 2445.402\nflags\t\t: fpu {flags} sse2\n\n\
-                 processor\t: 1\ncpu family\t: 25\nmodel\t\t: 1\nmodel name\t: AMD EPYC\n\
-                 stepping\t: 1\ncpu MHz\t\t: 2445.402\nflags\t\t: fpu {flags} sse2\n"
-            );
-            describe_cpu(&info).unwrap()
-        };
-        assert!(cpu("avx2 avx512f avx512_bf16").ends_with("AVX-512 with BF16"));
-        assert!(cpu("avx2 avx512f").ends_with("AVX-512"));
-        assert!(cpu("avx avx2 fma").ends_with("AVX2, no AVX-512"));
-        assert!(cpu("avx").ends_with("no AVX2"));
-        assert!(
-            cpu("avx2").starts_with("AMD EPYC (family 25 model 1 stepping 1, 2.45 GHz), "),
-            "{}",
-            cpu("avx2")
-        );
-        assert_eq!(describe_cpu("processor\t: 0\n"), None);
-    }
 }

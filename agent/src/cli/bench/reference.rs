@@ -450,7 +450,7 @@ pub fn run(
             },
             "timing": timings,
             "load_average_1m": {"before": load_before, "after": load_after},
-            "machine": super::cpu_description(),
+            "machine": crate::machine::cpu_description(),
         });
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
