@@ -10,12 +10,12 @@ per run, where the whole metrics file is a few MB.
 
 With --checkpoint it also keeps the run's newest checkpoint (checkpoints/step-*.safetensors,
 about 7 MB at ML10's sizes), which makes the copy a run folder that `million train --resume`
-continues: a run that has to stop before its budget (runs/ is not kept in the repository, and
-a lent machine is lent for a time) is carried on that way from OUT/<name>, copied back to
-runs/<name> and resumed with the same config and seed. The resumed run's metrics.jsonl then
-holds only these records before the resume step. Keeping the run again without --checkpoint,
-once it has finished, removes the carried checkpoint from OUT (it stays in git's history:
-each one carried adds its size to the repository for good).
+continues: a run that has to stop before its budget is carried on that way from
+OUT/<name>, copied back to runs/<name> and resumed with the same config and seed. The resumed
+run's metrics.jsonl then holds only these records before the resume step. Keeping the run
+again without --checkpoint, once it has finished, removes the carried checkpoint from OUT.
+Such an OUT belongs on storage of its own, not in the repository, which takes no file over
+5 MB.
 
 Usage: .venv/bin/python tools/keep_evaluations.py RUN_DIR ... --out docs/experiments/data/DATE-NAME
        [--checkpoint]
