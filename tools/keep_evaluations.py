@@ -51,13 +51,12 @@ def newest_checkpoint(run: Path) -> Path:
     return found[-1]
 
 
-def keep_run(run: Path, out_dir: Path, checkpoint: bool = False) -> int:
-    """Writes the kept records of `run` and, with `checkpoint`, its newest checkpoint in place
-    of any carried before (without it, removes any carried before); returns how many records."""
+def keep_run(run: Path, out_dir: Path, checkpoint: Path | None = None) -> int:
+    """Writes the kept records of `run` and `checkpoint` (one of its checkpoints) in place of
+    any carried before; without one, removes any carried before. Returns how many records."""
     target = out_dir / run.name
     if target.resolve() == run.resolve():
         raise SystemExit(f"{run}: the kept copy would be the run itself; name another --out")
-    source = newest_checkpoint(run) if checkpoint else None
     lines = [
         json.dumps(part, separators=(",", ":"))
         for part in map(kept, records(run))
@@ -70,14 +69,14 @@ def keep_run(run: Path, out_dir: Path, checkpoint: bool = False) -> int:
         shutil.copyfile(config, target / "config.toml")
     kept_dir = target / "checkpoints"
     for older in kept_dir.glob("step-*.safetensors"):
-        if source is None or older.name != source.name:
+        if checkpoint is None or older.name != checkpoint.name:
             older.unlink()
             print(f"removed the carried checkpoint {older}")
-    if source is None and kept_dir.is_dir() and not any(kept_dir.iterdir()):
-        kept_dir.rmdir()
-    if source is not None:
+    if checkpoint is not None:
         kept_dir.mkdir(exist_ok=True)
-        shutil.copyfile(source, kept_dir / source.name)
+        shutil.copyfile(checkpoint, kept_dir / checkpoint.name)
+    elif kept_dir.is_dir() and not any(kept_dir.iterdir()):
+        kept_dir.rmdir()
     return len(lines)
 
 
@@ -91,12 +90,10 @@ def main() -> None:
         help="also keep the newest checkpoint, so the copy can be resumed later",
     )
     args = parser.parse_args()
-    if args.checkpoint:
-        # Every run's checkpoint is found before anything is written.
-        for run in args.runs:
-            newest_checkpoint(run)
-    for run in args.runs:
-        n = keep_run(run, args.out, args.checkpoint)
+    # Every run's checkpoint is found before anything is written.
+    checkpoints = [newest_checkpoint(run) if args.checkpoint else None for run in args.runs]
+    for run, checkpoint in zip(args.runs, checkpoints, strict=True):
+        n = keep_run(run, args.out, checkpoint)
         print(f"{run} -> {args.out / run.name / 'metrics.jsonl'}: {n} records")
 
 
