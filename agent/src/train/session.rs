@@ -132,7 +132,8 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     cfg.agent().runtime.apply();
     tch::manual_seed(cfg.env.agent_seed as i64);
     let (local_servers, servers) = env_servers(&opts).await?;
-    let (learner, buffer, agent_steps) = new_or_resumed_learner(&opts)?;
+    let cpu = crate::machine::cpu_description();
+    let (learner, buffer, agent_steps) = new_or_resumed_learner(&opts, cpu.as_deref())?;
     let start_updates = learner.updates();
     let mut actor_vs = VarStore::new(cfg.runtime.device());
     let model = Model::new(&actor_vs.root(), &cfg.model, &cfg.popart);
@@ -149,7 +150,7 @@ pub async fn train(opts: TrainOptions) -> anyhow::Result<TrainSummary> {
     let metrics = open_run_dir(&opts, agent_steps)?;
     let mut extra = HashMap::new();
     extra.insert(RUN_CONFIG_KEY.to_owned(), toml::to_string(&cfg)?);
-    if let Some(cpu) = crate::machine::cpu_description() {
+    if let Some(cpu) = cpu {
         extra.insert(CPU_KEY.to_owned(), cpu);
     }
     let mut learner_thread = LearnerThread::spawn(learner, buffer, &cfg, extra.clone())?;
@@ -221,9 +222,13 @@ async fn env_servers(opts: &TrainOptions) -> anyhow::Result<(Vec<SupervisedServe
     Ok((local, addrs))
 }
 
-/// A new learner, or (`--resume`) the newest checkpoint's with its step and buffer counters.
+/// A new learner, or (`--resume`) the newest checkpoint's with its step and buffer counters,
+/// with a warning when the checkpoint was written on another kind of CPU than `cpu`.
 /// The buffer's segments are not checkpointed: a resumed run refills it.
-fn new_or_resumed_learner(opts: &TrainOptions) -> anyhow::Result<(Learner, SegmentBuffer, u64)> {
+fn new_or_resumed_learner(
+    opts: &TrainOptions,
+    cpu: Option<&str>,
+) -> anyhow::Result<(Learner, SegmentBuffer, u64)> {
     let agent_cfg = opts.config.agent();
     let mut learner = Learner::new(agent_cfg.clone(), opts.config.runtime.device());
     let mut buffer = SegmentBuffer::new(&agent_cfg.buffer);
@@ -240,10 +245,7 @@ fn new_or_resumed_learner(opts: &TrainOptions) -> anyhow::Result<(Learner, Segme
     buffer.restore_counters(meta.counters.buffer);
     let agent_steps = meta.counters.agent_steps;
     tracing::info!(checkpoint = %path.display(), agent_steps, updates = learner.updates(), "resumed");
-    if let Some(note) = another_cpu(
-        meta.extra.get(CPU_KEY).map(String::as_str),
-        crate::machine::cpu_description().as_deref(),
-    ) {
+    if let Some(note) = another_cpu(meta.extra.get(CPU_KEY).map(String::as_str), cpu) {
         tracing::warn!("{note}");
     }
     Ok((learner, buffer, agent_steps))
