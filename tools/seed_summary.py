@@ -7,7 +7,10 @@ At a run's last step there are two evaluations, the periodic one (the actors' we
 the final one (the learner's weights after every update); the final one counts, so the last
 three are those of the last three distinct evaluation steps.
 
-Usage: .venv/bin/python tools/seed_summary.py [--metric first_trial_success] RUN_DIR ...
+With --tasks it also prints each split's per-task success (the same last three evaluations)
+as a Markdown table, one column per run and their mean: which tasks a multi-task arm learns.
+
+Usage: .venv/bin/python tools/seed_summary.py [--metric first_trial_success] [--tasks] RUN_DIR ...
        (runs of one arm: one config, several seeds; --at STEPS cuts every run there)
 """
 
@@ -54,18 +57,54 @@ def last_mean(points: list[tuple[int, float]]) -> tuple[float, list[int]] | None
     return statistics.fmean(v for _, v in tail), [s for s, _ in tail]
 
 
+def task_table(
+    runs: list[Path], rows_of: dict[Path, list[dict[str, float]]], split: str, at: int | None
+) -> list[str]:
+    """Markdown rows: each task's success over its last three evaluations, per run and the
+    runs' mean; a run without the task's three evaluations shows "-" and is left out of the
+    mean."""
+    prefix = f"eval/{split}/task/"
+    tasks = sorted(
+        {
+            k[len(prefix) :]
+            for rows in rows_of.values()
+            for r in rows
+            for k in r
+            if k.startswith(prefix)
+        }
+    )
+    if not tasks:
+        return []
+    lines = [
+        f"| {split} task | " + " | ".join(run.name for run in runs) + " | mean |",
+        "|---|" + "---|" * (len(runs) + 1),
+    ]
+    for task in tasks:
+        cells, values = [], []
+        for run in runs:
+            got = last_mean(evaluations(rows_of[run], prefix + task, at))
+            cells.append("-" if got is None else f"{got[0]:.2f}")
+            if got is not None:
+                values.append(got[0])
+        mean = f"{statistics.fmean(values):.2f}" if values else "-"
+        lines.append(f"| {task} | " + " | ".join(cells) + f" | {mean} |")
+    return lines
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--metric", default="success", help="eval/<split>/<metric>")
     parser.add_argument("--at", type=int, default=None, help="ignore records after this step")
+    parser.add_argument("--tasks", action="store_true", help="per-task success tables too")
     args = parser.parse_args()
+    rows_of: dict[Path, list[dict[str, float]]] = {}
     splits = ("train", "test")
     per_split: dict[str, list[float]] = {s: [] for s in splits}
     stochastic: list[float] = []
     ends: dict[Path, int] = {}
     for run in args.runs:
-        rows = records(run)
+        rows = rows_of[run] = records(run)
         ends[run] = max((int(r["step"]) for r in rows), default=0)
         cells = []
         for split in splits:
@@ -98,6 +137,12 @@ def main() -> None:
             f"stochastic train success: mean {statistics.fmean(stochastic):.3f}, "
             f"range {min(stochastic):.3f}-{max(stochastic):.3f}"
         )
+    if args.tasks:
+        for split in splits:
+            table = task_table(args.runs, rows_of, split, args.at)
+            if table:
+                print()
+                print("\n".join(table))
 
 
 if __name__ == "__main__":
