@@ -1,8 +1,8 @@
 """Lint: development vocabulary in the repository's text and file names.
 
 The documents, comments and file names speak of the software. History is told by
-dates and commit hashes, never by work numbers ("stop 31", "issue 8", "rung 2"),
-working periods ("this session", "next session") or "today". This script reads every
+dates and commit hashes, never by work numbers (a stop, issue or rung and its number),
+working periods (this or the next session) or "today". This script reads every
 file git knows of (tracked, and untracked files that are not ignored), skips binary
 ones, and prints `path:line: text` for every line that uses such words, and
 `path: file name` for a file whose name does. It exits 1 if anything was found.
@@ -23,7 +23,7 @@ from pathlib import Path
 # The checker and its test must contain the patterns they look for.
 SKIPPED = frozenset({"tools/lint_vocabulary.py", "tests/lint/test_vocabulary.py"})
 
-# A number that is a quantity, not a label: "the run stops 5 s later", "stops 2 runs".
+# A number that is a quantity, not a label: "stops" followed by "5 s later" or "2 runs".
 _QUANTITY = (
     r"(?![\d.]|\s*(?:s|ms|min|minutes?|seconds?|hours?|%|k|M|times?|runs?|steps?"
     r"|agent|env|updates?|episodes?|trials?)\b)"
@@ -31,10 +31,10 @@ _QUANTITY = (
 
 # (what the words are, the pattern), each matched against one line at a time.
 PATTERNS: tuple[tuple[str, re.Pattern[str]], ...] = (
-    # "stop 31", "Stop 22", "stops 27-29", "stops 24 and 33", and names like "stop31".
+    # "stop" or "Stops" and a label number, a range or two joined by "and"; names like stop31.
     ("work number", re.compile(r"\bstops? #?\d+" + _QUANTITY, re.IGNORECASE)),
     ("work number", re.compile(r"(?<![A-Za-z])stop[-_]?\d+(?![\d.])", re.IGNORECASE)),
-    # "issue 8", "issue #12", "issues 8 and 9".
+    # "issue" or "issues" and a number, "#" and a number, or two joined by "and".
     ("issue number", re.compile(r"\bissues? #?\d+" + _QUANTITY, re.IGNORECASE)),
     # "rung 2", "rungs 3 and 4", "ladder rung", and names like "rung2-seed1.png".
     (
