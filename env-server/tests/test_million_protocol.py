@@ -420,6 +420,22 @@ def test_no_instructions_ablation_gives_the_previous_reward() -> None:
     assert phases(failed) == ["trial", "trial", "trial"]
 
 
+def test_reward_in_obs_gives_the_previous_reward_beside_the_words() -> None:
+    env = make(reward_in_obs=True)
+    records = run_episode(env, walk_to_goal, seed=6)
+    # The words are still fed, and their steps pay nothing.
+    fed = [r for r in records if r["info"]["phase"] == "instruction"]
+    assert fed and all(r["reward"] == 0.0 for r in fed)
+    assert any(r["obs"]["word"].any() for r in records)
+    for record in records:
+        assert record["obs"]["prev_reward"][0] == np.float32(record["reward"])
+    assert any(r["reward"] != 0.0 for r in records)
+    # Without the option the same episode shows no reward.
+    plain = run_episode(make(), walk_to_goal, seed=6)
+    assert [r["reward"] for r in plain] == [r["reward"] for r in records]
+    assert not any(r["obs"]["prev_reward"][0] for r in plain)
+
+
 def test_episode_time_ablation_counts_agent_steps_of_the_episode() -> None:
     env = make(time_obs="episode")
     records = run_episode(env, stand_still, seed=7)

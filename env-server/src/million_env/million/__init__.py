@@ -20,8 +20,9 @@ zeros in trials), ``time`` float32 (1), ``phase`` float32 (1; 1 = instruction),
 instruction phases and at a trial's first observation),
 ``task_id`` Discrete (index in `million_env.metaworld_tasks.ALL_TASK_NAMES`;
 PointGoal: always 0 of Discrete(1)), ``prev_reward`` float32 (1; only set without
-instructions). `million_env.million.protocol.observation_space` says more. Info fields
-are declared in ``metadata["info_fields"]``; see `million_env.million.protocol`.
+instructions or with ``reward_in_obs=True``).
+`million_env.million.protocol.observation_space` says more. Info fields are declared in
+``metadata["info_fields"]``; see `million_env.million.protocol`.
 
 `register_envs()` puts every id into Gymnasium's registry; `protocol_stats()`
 reports process-wide counters (instruction tokens fed, unknown words).

@@ -157,6 +157,12 @@ class ProtocolOptions:
         BOOL,
         "False: no instruction phases (ablation), and prev_reward holds the previous reward",
     )
+    reward_in_obs: bool = _option(
+        False,
+        BOOL,
+        "True: prev_reward holds the previous reward with instructions too (without them it "
+        "always does)",
+    )
     time_obs: str = _option(
         "trial",
         one_of(TIME_OBS_MODES),

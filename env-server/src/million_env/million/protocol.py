@@ -111,7 +111,8 @@ def observation_space(num_task_ids: int) -> gymnasium.spaces.Dict:
       code's trial flag: a full-length trial (`end_on_success=False`) runs on after its
       success, and without it the value of a solved trial looks like an unsolved one's.
     - ``task_id``: the task's index in the source's id range (PointGoal: always 0).
-    - ``prev_reward``: the previous step's reward with ``instructions=False``, else 0.
+    - ``prev_reward``: the previous step's reward with ``instructions=False`` or
+      ``reward_in_obs=True`` (0 after an instruction phase's steps), else 0.
     """
     inf = np.inf
     return gymnasium.spaces.Dict(
@@ -162,6 +163,9 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
         self._sentences = {name: tuple(sentences[name]) for name in source.task_names}
         self._encoder = InstructionEncoder()
         self._instructions = options.instructions
+        # The ablation's token carries the previous reward; reward_in_obs gives it beside the
+        # words, to tell what the words add from what the reward adds.
+        self._reward_in_obs = options.reward_in_obs or not options.instructions
         self._reflect_goal = options.instruction_goal == "reflected"
         self._goal_in_range = options.goal_encoding == "range"
         self._goal_in_state = options.goal_in_state
@@ -392,7 +396,7 @@ class MillionEnv(gymnasium.Env[dict[str, Any], npt.NDArray[np.float32]]):
             phase = 0.0
             # Reset with the trial's MDP, so a trial's first observation always shows 0.
             trial_success = float(self._trial_succeeded)
-        prev_reward = 0.0 if self._instructions else self._prev_reward
+        prev_reward = self._prev_reward if self._reward_in_obs else 0.0
         return {
             "state": state,
             "word": word,
