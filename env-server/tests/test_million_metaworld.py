@@ -63,6 +63,7 @@ def test_registered_ids() -> None:
     assert gymnasium.registry["million/ML10-train"].kwargs == {
         "instruction_set": "train",
         "instructions": True,
+        "reward_in_obs": False,
         "time_obs": "trial",
         "action_repeat": 2,
         "trials": 3,
