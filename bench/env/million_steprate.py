@@ -7,7 +7,8 @@ actions). Both therefore simulate the same number of env steps of the same
 tasks, and the ratio of their times is the protocol's cost (instruction steps,
 observation and info building included). Times are this process's CPU time, so
 other processes on a shared machine do not count; runs alternate and the fastest
-of each side is kept.
+of each side is kept. `--no-fast-paths` also times Meta-World's own code throughout,
+`--metaworld-reset` Meta-World's own reset with the other fast paths.
 
     .venv/bin/python bench/env/million_steprate.py --episodes 20 --repeats 3
 """
@@ -15,8 +16,10 @@ of each side is kept.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import time
+from collections.abc import Iterator
 
 import gymnasium
 import numpy as np
@@ -105,6 +108,22 @@ def protocol_cost_per_step(steps: int = 20_000) -> float:
     return (served - bare) / steps * 1e6
 
 
+@contextlib.contextmanager
+def metaworld_reset() -> Iterator[None]:
+    """Meta-World's own `SawyerXYZEnv.reset` in place of the fast path's, the other fast
+    paths kept."""
+    from metaworld.sawyer_xyz_env import SawyerXYZEnv
+
+    metaworld_fast_paths.install(False)
+    own = SawyerXYZEnv.reset
+    metaworld_fast_paths.install(True)
+    SawyerXYZEnv.reset = own  # type: ignore[method-assign]
+    try:
+        yield
+    finally:
+        metaworld_fast_paths.install(True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=20)
@@ -116,11 +135,21 @@ def main() -> None:
         help="also time every repeat with Meta-World's own code (million_env."
         "metaworld_fast_paths off), alternating with the fast paths, and report the ratio",
     )
+    parser.add_argument(
+        "--metaworld-reset",
+        action="store_true",
+        help="also time every repeat with Meta-World's own reset and the other fast paths, "
+        "alternating with all fast paths, and report the ratio: what the reset fast path buys",
+    )
     args = parser.parse_args()
     env_descriptions()  # registers the envs as the server does: compiled models, fast paths
     actions = np.random.default_rng(args.seed).uniform(-1, 1, size=(4096, 4)).astype(np.float32)
     million_times, raw_times, reference_million_times, reference_raw_times = [], [], [], []
+    own_reset_times: list[float] = []
     for _ in range(args.repeats):
+        if args.metaworld_reset:
+            with metaworld_reset():
+                own_reset_times.append(run_million(args.seed, args.episodes, actions)[0])
         if args.no_fast_paths:
             metaworld_fast_paths.install(False)
             elapsed, _agent_steps, _env_steps, schedule = run_million(
@@ -142,6 +171,12 @@ def main() -> None:
             "fast_paths_speedup_million": round(reference_million / million, 3),
             "fast_paths_speedup_raw": round(reference_raw / raw, 3),
         }
+    if args.metaworld_reset:
+        own_reset = min(own_reset_times)
+        reference_figures["metaworld_reset_million_agent_steps_per_s"] = round(
+            agent_steps / own_reset, 1
+        )
+        reference_figures["fast_reset_speedup_million"] = round(own_reset / million, 3)
     print(
         json.dumps(
             {

@@ -24,15 +24,21 @@ def run_script(name: str, *args: str) -> dict:
 
 
 def test_fast_paths_bench_times_both_codes_per_class() -> None:
-    report = run_script("fast_paths.py", "--split", "test", "--steps", "5", "--repeats", "1")
+    report = run_script(
+        "fast_paths.py", "--split", "test", "--steps", "5", "--resets", "2", "--repeats", "1"
+    )
     assert report["split"] == "ML10-test"
     assert len(report["per_class"]) == 5
     for figures in report["per_class"].values():
         assert figures["metaworld_us_per_step"] > 0 and figures["fast_paths_us_per_step"] > 0
+        assert figures["metaworld_us_per_reset"] > 0 and figures["fast_paths_us_per_reset"] > 0
 
 
 def test_million_steprate_bench_compares_the_protocol_with_raw_metaworld() -> None:
-    report = run_script("million_steprate.py", "--episodes", "1", "--repeats", "1")
+    report = run_script(
+        "million_steprate.py", "--episodes", "1", "--repeats", "1", "--metaworld-reset"
+    )
+    assert report["fast_reset_speedup_million"] > 0
     assert report["agent_steps"] > 0 and report["env_steps"] > report["agent_steps"]
     assert report["million_agent_steps_per_s"] > 0 and report["raw_metaworld_env_steps_per_s"] > 0
     assert report["unknown_words"] == 0

@@ -1,7 +1,8 @@
 """Meta-World's fast paths give what Meta-World's own code gives, bit for bit: the object
 quaternion on random rotations, on the branches' edge cases, on matrices scipy must repair or
 refuse, and in the observations of every class that uses it; the gripper-contact test in
-every class whose reward uses it, along scripted grasps."""
+every class whose reward uses it, along scripted grasps; the reset in every class, over new
+tasks and repeated resets of one, and under the MILLION protocol."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
+import gymnasium
 import numpy as np
 import pytest
 from metaworld.env_dict import ALL_V3_ENVIRONMENTS
@@ -187,3 +189,106 @@ def test_the_contact_test_matches_metaworlds_along_a_grasp(name: str, fast_paths
     # The grasp must reach states where the answer is yes, or the comparison proves little.
     if name in ("pick-place-v3", "pick-place-wall-v3", "push-v3", "shelf-place-v3"):
         assert touching > 0
+
+
+ALL_CLASSES = sorted(ALL_V3_ENVIRONMENTS)
+
+
+def class_and_tasks(name: str) -> tuple[Any, list[Any]]:
+    """The class `name` and its ML45 tasks (ML45's two splits hold all 50 classes; it is built
+    once per process, where ML1 would be built once per class)."""
+    bench = load_benchmark("ML45", None, 0)
+    for classes, tasks in (
+        (bench.train_classes, bench.train_tasks),
+        (bench.test_classes, bench.test_tasks),
+    ):
+        if name in classes:
+            return classes[name], [t for t in tasks if t.env_name == name]
+    raise KeyError(name)
+
+
+def count_reset_model_calls(env: Any) -> list[int]:
+    """Counts the env's `reset_model` calls in the returned list's one entry."""
+    calls = [0]
+    own = env.reset_model
+
+    def counted() -> Any:
+        calls[0] += 1
+        return own()
+
+    env.reset_model = counted
+    return calls
+
+
+def in_turn(fast: bool, env: Any, method: str, *args: Any, **kwargs: Any) -> Any:
+    """`env.method(*args, **kwargs)` with the fast paths in place or Meta-World's code, as
+    `fast` says (the method is looked up after the choice, so it is the chosen one)."""
+    metaworld_fast_paths.install(fast)
+    return getattr(env, method)(*args, **kwargs)
+
+
+@pytest.mark.parametrize("name", ALL_CLASSES)
+def test_resets_match_metaworlds_in_every_class(name: str, fast_paths: None) -> None:
+    """Two envs of the class, one reset by the fast path and one by Meta-World's code, given
+    the same two tasks, two resets each with random steps between: every observation,
+    reward and success flag equal; the fast path calls `reset_model` 2 + 1 times a task
+    where Meta-World calls it 2 + 2."""
+    cls, tasks = class_and_tasks(name)
+    envs = {True: cls(), False: cls()}
+    calls = {fast: count_reset_model_calls(env) for fast, env in envs.items()}
+    actions = np.random.default_rng(7).uniform(-1, 1, (10, 4)).astype(np.float32)
+    try:
+        for task in tasks[:2]:
+            for env in envs.values():
+                env.seed(11)
+                env.set_task(task)
+            for _reset in range(2):
+                first = {fast: in_turn(fast, env, "reset")[0] for fast, env in envs.items()}
+                assert np.array_equal(first[True], first[False])
+                for action in actions:
+                    steps = {fast: in_turn(fast, env, "step", action) for fast, env in envs.items()}
+                    (obs, reward, _, _, info), (mw_obs, mw_reward, _, _, mw_info) = (
+                        steps[True],
+                        steps[False],
+                    )
+                    assert np.array_equal(obs, mw_obs)
+                    assert reward == mw_reward
+                    assert info["success"] == mw_info["success"]
+    finally:
+        for env in envs.values():
+            env.close()
+    assert calls[True][0] == 2 * (2 + 1)
+    assert calls[False][0] == 2 * (2 + 2)
+
+
+def test_million_episodes_match_metaworlds_resets(fast_paths: None) -> None:
+    """The MILLION protocol on reach, whose puck `object_position="centre"` moves after each
+    reset: the same episodes, number for number, with either reset."""
+    from million_env.million import register_envs
+
+    register_envs()
+    envs = {
+        fast: gymnasium.make(
+            "million/ML10-train", tasks=["reach-v3"], object_position="centre"
+        ).unwrapped
+        for fast in (True, False)
+    }
+    actions = np.random.default_rng(3).uniform(-1, 1, (2_000, 4)).astype(np.float32)
+    try:
+        for fast, env in envs.items():
+            in_turn(fast, env, "reset", seed=5)
+        trial_ends = 0
+        for action in actions:
+            steps = {fast: in_turn(fast, env, "step", action) for fast, env in envs.items()}
+            (obs, reward, done, _, info), (mw_obs, mw_reward, _, _, _) = steps[True], steps[False]
+            for key in obs:
+                assert np.array_equal(obs[key], mw_obs[key]), key
+            assert reward == mw_reward
+            trial_ends += info["trial_end"]
+            if done:
+                for fast, env in envs.items():
+                    in_turn(fast, env, "reset")
+    finally:
+        for env in envs.values():
+            env.close()
+    assert trial_ends >= 6  # resets within episodes happened, not only the first

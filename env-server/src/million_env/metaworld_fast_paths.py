@@ -1,4 +1,4 @@
-"""Two of Meta-World's hot spots done without their Python overhead, bit for bit the same.
+"""Three of Meta-World's hot spots done without their Python overhead, bit for bit the same.
 
 A profile of Meta-World v3 stepping ML10's train tasks in-process (py-spy, BENCHMARKS.md)
 found 22 % of the step in the gripper-contact test and, on a served ML1-reach run, 14 % of
@@ -17,8 +17,17 @@ the env server's samples in the object quaternion, against ~24 % for the MuJoCo 
   Python floats in scipy's order. A matrix that is not a right-handed orthonormal one to
   1e-13, which MuJoCo never gives, goes to scipy itself, so its checks and its
   orthogonalisation still apply.
+- **The reset** (``SawyerXYZEnv.reset``) runs the class's ``reset_model``, and with it
+  ``_reset_hand``'s 250 physics steps, twice: once itself, then again inside Gymnasium's
+  ``MujocoEnv.reset`` after ``mj_resetData`` has thrown the first one's simulation state away.
+  What the first call leaves behind is the model it edits (15 of the 50 classes move a body or
+  a site to the task's position there), so the first reset after ``set_task`` keeps
+  Meta-World's two calls; later resets of the same task, whose model already holds the task,
+  make the second call only. A MILLION episode resets its task four times (before the
+  instructions and before each of three trials), so it makes 5 ``reset_model`` calls
+  instead of 8.
 
-Both give the same results to the last bit (the tests compare them with Meta-World's own
+All three give the same results to the last bit (the tests compare them with Meta-World's own
 code on random rotations, edge cases and every patched class's trajectories, grasps
 included). ``install()`` puts them in place for every Meta-World env of the process;
 ``million-env-server --no-fast-paths`` keeps Meta-World's own code, for timing the two.
@@ -33,6 +42,7 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
 from scipy.spatial.transform import Rotation
 
 #: Largest deviation of M Mᵀ from the identity handled here; beyond it scipy decides.
@@ -142,7 +152,34 @@ def touching_object(env: Any, object_geom_id: int) -> bool:
     return 0 < left and 0 < right
 
 
+def reset(
+    env: Any, seed: int | None = None, options: dict[str, Any] | None = None
+) -> tuple[npt.NDArray[np.float64], dict[str, Any]]:
+    """``SawyerXYZEnv.reset``, with one ``reset_model`` call where Meta-World makes two, once
+    the env's model holds its task: after a reset with Meta-World's code since the task's
+    random vector was set and frozen (``set_task`` sets a new array, so a new task or a
+    changed vector takes Meta-World's path again)."""
+    task_vector = env._last_rand_vec
+    if not (
+        env._freeze_rand_vec
+        and task_vector is not None
+        and env.__dict__.get(_RESET_FOR) is task_vector
+    ):
+        obs, info = _METAWORLD_RESET(env, seed=seed, options=options)
+        env.__dict__[_RESET_FOR] = task_vector if env._freeze_rand_vec else None
+        return obs, info
+    env.curr_path_length = 0
+    obs, info = MujocoEnv.reset(env)
+    env._prev_obs = obs[:18].copy()
+    obs[18:36] = env._prev_obs
+    return obs.astype(np.float64), info
+
+
+#: The env attribute naming the task vector the env's model was last fully reset for.
+_RESET_FOR = "_million_model_reset_for"
+
 _METAWORLD_TOUCHING_OBJECT: Any = None
+_METAWORLD_RESET: Any = None
 
 #: The process's choice, read by `install()`; ``million-env-server --no-fast-paths`` clears
 #: it (for timing the two against each other: the numbers are the same).
@@ -152,16 +189,18 @@ ENABLED = True
 def install(enabled: bool | None = None) -> int:
     """Puts the fast paths in place, or Meta-World's own code back when `enabled` (default:
     `ENABLED`) is false; idempotent. Returns how many env modules' ``Rotation`` it set."""
-    global _METAWORLD_TOUCHING_OBJECT
+    global _METAWORLD_TOUCHING_OBJECT, _METAWORLD_RESET
     from metaworld.sawyer_xyz_env import SawyerXYZEnv
 
     use_fast = ENABLED if enabled is None else enabled
     with _LOCK:
         if _METAWORLD_TOUCHING_OBJECT is None:
             _METAWORLD_TOUCHING_OBJECT = SawyerXYZEnv.touching_object
+            _METAWORLD_RESET = SawyerXYZEnv.reset
         SawyerXYZEnv.touching_object = (  # type: ignore[method-assign]
             touching_object if use_fast else _METAWORLD_TOUCHING_OBJECT
         )
+        SawyerXYZEnv.reset = reset if use_fast else _METAWORLD_RESET  # type: ignore[method-assign]
         modules = env_modules()
         for module in modules:
             module.Rotation = MatrixRotation if use_fast else Rotation

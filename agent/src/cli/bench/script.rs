@@ -39,7 +39,7 @@ pub enum Script {
     /// Peak memory per env slot of one env server, builds and XML compiles per episode
     /// (bench/env/server_memory.py).
     ServerMemory(ScriptArgs),
-    /// Meta-World's step with and without the server's fast paths, per task class
+    /// Meta-World's step and reset with and without the server's fast paths, per task class
     /// (bench/env/fast_paths.py).
     FastPaths(ScriptArgs),
     /// Agent steps/s of million/ML10-train against raw Meta-World on the same tasks: the
