@@ -20,8 +20,9 @@ the env server's samples in the object quaternion, against ~24 % for the MuJoCo 
 - **The reset** (``SawyerXYZEnv.reset``) runs the class's ``reset_model``, and with it
   ``_reset_hand``'s 250 physics steps, twice: once itself, then again inside Gymnasium's
   ``MujocoEnv.reset`` after ``mj_resetData`` has thrown the first one's simulation state away.
-  What the first call leaves behind is the model it edits (15 of the 50 classes move a body or
-  a site to the task's position there), so the first reset after ``set_task`` keeps
+  The first call does leave something behind: skipping it changes the trajectories of 15 of
+  the 50 classes after a new task (window-open, for one, moves its window body in the model
+  to the task's position there), so the first reset after ``set_task`` keeps
   Meta-World's two calls; later resets of the same task, whose model already holds the task,
   make the second call only. A MILLION episode resets its task four times (before the
   instructions and before each of three trials), so it makes 5 ``reset_model`` calls
@@ -152,6 +153,10 @@ def touching_object(env: Any, object_geom_id: int) -> bool:
     return 0 < left and 0 < right
 
 
+#: The env attribute naming the task vector the env's model was last fully reset for.
+_RESET_FOR = "_million_model_reset_for"
+
+
 def reset(
     env: Any, seed: int | None = None, options: dict[str, Any] | None = None
 ) -> tuple[npt.NDArray[np.float64], dict[str, Any]]:
@@ -174,9 +179,6 @@ def reset(
     obs[18:36] = env._prev_obs
     return obs.astype(np.float64), info
 
-
-#: The env attribute naming the task vector the env's model was last fully reset for.
-_RESET_FOR = "_million_model_reset_for"
 
 _METAWORLD_TOUCHING_OBJECT: Any = None
 _METAWORLD_RESET: Any = None
