@@ -112,12 +112,7 @@ def protocol_cost_per_step(steps: int = 20_000) -> float:
 def metaworld_reset() -> Iterator[None]:
     """Meta-World's own `SawyerXYZEnv.reset` in place of the fast path's, the other fast
     paths kept."""
-    from metaworld.sawyer_xyz_env import SawyerXYZEnv
-
-    metaworld_fast_paths.install(False)
-    own = SawyerXYZEnv.reset
-    metaworld_fast_paths.install(True)
-    SawyerXYZEnv.reset = own  # type: ignore[method-assign]
+    metaworld_fast_paths.install(True, fast_reset=False)
     try:
         yield
     finally:

@@ -111,6 +111,17 @@ def test_a_fresh_process_installs_it_when_it_makes_an_env() -> None:
     assert out.stdout.split() == ["22", "True", "True"]
 
 
+def test_the_reset_can_be_chosen_apart(fast_paths: None) -> None:
+    metaworld_fast_paths.install(True, fast_reset=False)
+    assert SawyerXYZEnv.reset is not metaworld_fast_paths.reset
+    assert SawyerXYZEnv.touching_object is touching_object
+    metaworld_fast_paths.install(False, fast_reset=True)
+    assert SawyerXYZEnv.reset is metaworld_fast_paths.reset
+    assert SawyerXYZEnv.touching_object is not touching_object
+    metaworld_fast_paths.install(True)
+    assert SawyerXYZEnv.reset is metaworld_fast_paths.reset
+
+
 @contextlib.contextmanager
 def task_env(name: str, seed: int) -> Iterator[Any]:
     """A Meta-World env of class `name` with its first ML1 goal set, closed afterwards."""

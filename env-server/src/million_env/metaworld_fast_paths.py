@@ -188,13 +188,16 @@ _METAWORLD_RESET: Any = None
 ENABLED = True
 
 
-def install(enabled: bool | None = None) -> int:
+def install(enabled: bool | None = None, *, fast_reset: bool | None = None) -> int:
     """Puts the fast paths in place, or Meta-World's own code back when `enabled` (default:
-    `ENABLED`) is false; idempotent. Returns how many env modules' ``Rotation`` it set."""
+    `ENABLED`) is false; idempotent. `fast_reset` (default: as `enabled`) chooses the reset
+    apart, so the reset's share can be timed with the other fast paths kept. Returns how many
+    env modules' ``Rotation`` it set."""
     global _METAWORLD_TOUCHING_OBJECT, _METAWORLD_RESET
     from metaworld.sawyer_xyz_env import SawyerXYZEnv
 
     use_fast = ENABLED if enabled is None else enabled
+    use_fast_reset = use_fast if fast_reset is None else fast_reset
     with _LOCK:
         if _METAWORLD_TOUCHING_OBJECT is None:
             _METAWORLD_TOUCHING_OBJECT = SawyerXYZEnv.touching_object
@@ -202,7 +205,7 @@ def install(enabled: bool | None = None) -> int:
         SawyerXYZEnv.touching_object = (  # type: ignore[method-assign]
             touching_object if use_fast else _METAWORLD_TOUCHING_OBJECT
         )
-        SawyerXYZEnv.reset = reset if use_fast else _METAWORLD_RESET  # type: ignore[method-assign]
+        SawyerXYZEnv.reset = reset if use_fast_reset else _METAWORLD_RESET  # type: ignore[method-assign]
         modules = env_modules()
         for module in modules:
             module.Rotation = MatrixRotation if use_fast else Rotation
