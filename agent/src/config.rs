@@ -101,6 +101,15 @@ pub struct ModelConfig {
     /// "bfloat16" (weights, gradients and optimiser state stay float32; no faster over a
     /// whole update on the 2-core machine, and no learning run has used it). See `model::dense`.
     pub matmul_dtype: MatmulDtype,
+    /// A head that predicts the task's real goal (the env's `goal` info, metres) from the
+    /// core's output at every trial step (not in the paper; "off" = the paper). "probe": its
+    /// gradient stops at the core, so it only measures whether the network carries the goal
+    /// (`learner/goal_error`, per task `learner/task_goal_error/<id>`); "auxiliary": its loss
+    /// also trains the network, to make it read the goal in the words. The goal travels at
+    /// the token's end, after the instruction slots, and the network never takes it as input.
+    pub goal_prediction: GoalPrediction,
+    /// Weight of the goal head's loss, ½ mean squared error in metres over trial steps.
+    pub goal_prediction_weight: f64,
 }
 
 impl Default for ModelConfig {
@@ -127,6 +136,8 @@ impl Default for ModelConfig {
             obs_norm: vec![],
             instruction_words: 0,
             matmul_dtype: MatmulDtype::Float32,
+            goal_prediction: GoalPrediction::Off,
+            goal_prediction_weight: 1.0,
         }
     }
 }
@@ -135,9 +146,23 @@ impl Default for ModelConfig {
 pub const WORD_FIELD: &str = "word";
 
 impl ModelConfig {
-    /// Length of the token the model takes: the configured fields, then the instruction slots.
+    /// Length of the token: the configured fields, then the instruction slots, then the goal
+    /// that `goal_prediction` learns to predict (not an input of the network).
     pub fn obs_dim(&self) -> usize {
-        self.fields_dim() + self.instruction_dim()
+        self.fields_dim() + self.instruction_dim() + self.goal_dim()
+    }
+
+    /// Width of the goal at the token's end: 3 with `goal_prediction`, else 0.
+    pub fn goal_dim(&self) -> usize {
+        match self.goal_prediction {
+            GoalPrediction::Off => 0,
+            GoalPrediction::Probe | GoalPrediction::Auxiliary => GOAL_DIM,
+        }
+    }
+
+    /// Where the goal lies in the token: (offset, width); None without `goal_prediction`.
+    pub fn goal_span(&self) -> Option<(usize, usize)> {
+        (self.goal_dim() > 0).then(|| (self.fields_dim() + self.instruction_dim(), GOAL_DIM))
     }
 
     /// Length of the configured fields concatenated.
@@ -270,6 +295,24 @@ pub enum MatmulDtype {
     Float32,
     /// Inputs and weights rounded to bfloat16 for the product; see `model::dense`.
     Bfloat16,
+}
+
+/// Values of the env's `goal` info: a position in metres.
+pub const GOAL_DIM: usize = 3;
+/// The info field `model.goal_prediction` predicts.
+pub const GOAL_INFO: &str = "goal";
+
+/// Whether and how the network predicts the task's goal (`model.goal_prediction`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum GoalPrediction {
+    /// No goal head: the paper.
+    #[default]
+    Off,
+    /// A goal head on the core's output with its gradient stopped: a measurement only.
+    Probe,
+    /// A goal head whose loss trains the network too.
+    Auxiliary,
 }
 
 /// What the decoupled KL terms compare the learned policy with.
@@ -503,6 +546,9 @@ impl AgentConfig {
                  (the words it keeps)",
                 m.instruction_words
             ));
+        }
+        if !(m.goal_prediction_weight.is_finite() && m.goal_prediction_weight >= 0.0) {
+            return bad("model.goal_prediction_weight must be finite and >= 0".into());
         }
         let p = &self.popart;
         if p.beta <= 0.0 || p.beta > 1.0 || p.sigma_min <= 0.0 || p.sigma_min >= p.sigma_max {

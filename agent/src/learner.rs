@@ -113,6 +113,15 @@ pub struct UpdateMetrics {
     /// Task id → the mean KL of the mean over that task's policy steps: which tasks spend
     /// the batch-wide trust region (ε_αμ bounds the batch's mean).
     pub task_kl_mu: BTreeMap<i64, f64>,
+    /// The goal head's loss (its weight included) and its root mean squared error in metres
+    /// over the batch's policy steps, overall and per task id (`model.goal_prediction`; absent
+    /// without a goal head).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub goal_loss: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub goal_error: Option<f64>,
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub task_goal_error: BTreeMap<i64, f64>,
 }
 
 /// The loss terms of one batch (steps 1–6 of an update) and what the metrics need.
@@ -123,6 +132,8 @@ struct Losses {
     alpha_mu_loss: Tensor,
     alpha_sigma_loss: Tensor,
     value_loss: Tensor,
+    /// The goal head's weighted loss and each step's squared error `[n]` (None without one).
+    goal: Option<(Tensor, Tensor)>,
     kl_mu: Tensor,
     kl_sigma: Tensor,
     returns: Tensor,
@@ -496,8 +507,29 @@ impl Learner {
             &policy_mask,
         );
 
-        let loss =
+        // 7. The goal head (`model.goal_prediction`): ½ mean squared error in metres over the
+        //    trial steps, where the goal is the env's and the words may have told it.
+        let goal = self
+            .model
+            .goal(&out.core.output.narrow(1, 0, t_len))
+            .zip(self.model.goal_target(&b.obs))
+            .map(|(predicted, target)| {
+                let sq_error = (predicted - target)
+                    .square()
+                    .sum_dim_intlist(-1, false, Kind::Float)
+                    .reshape([n]);
+                let trial_w = flat(&b.instruction).logical_not().to_kind(Kind::Float);
+                let goal_loss = (&sq_error * &trial_w).sum(Kind::Float)
+                    / trial_w.sum(Kind::Float).clamp_min(1.0)
+                    * (0.5 * cfg.model.goal_prediction_weight);
+                (goal_loss, sq_error)
+            });
+
+        let mut loss =
             &policy_loss + &temperature_loss + &alpha_mu_loss + &alpha_sigma_loss + &value_loss;
+        if let Some((goal_loss, _)) = &goal {
+            loss += goal_loss;
+        }
         Ok(Losses {
             loss,
             policy_loss,
@@ -505,6 +537,7 @@ impl Learner {
             alpha_mu_loss,
             alpha_sigma_loss,
             value_loss,
+            goal,
             kl_mu,
             kl_sigma,
             returns: g,
@@ -564,6 +597,14 @@ impl Learner {
                 &l.task_policy_steps,
             ),
             task_kl_mu: per_task(&task_mean(&l.kl_mu), &l.task_policy_steps),
+            goal_loss: l.goal.as_ref().map(|(loss, _)| loss.double_value(&[])),
+            goal_error: l
+                .goal
+                .as_ref()
+                .map(|(_, e)| masked_mean(e, &pw, policy_steps).sqrt()),
+            task_goal_error: l.goal.as_ref().map_or_else(BTreeMap::new, |(_, e)| {
+                per_task(&task_mean(e).sqrt(), &l.task_policy_steps)
+            }),
         }
     }
 }

@@ -1,6 +1,7 @@
 //! The MILLION network: observation token → [running normalisation, `model.obs_norm`] →
 //! LayerNorm → Linear [+ the instruction slots' pooling, `model.instruction_words`] → GTrXL →
-//! policy head and Pop-Art value head (docs/ALGORITHM.md §2).
+//! policy head and Pop-Art value head (docs/ALGORITHM.md §2) [+ the goal head,
+//! `model.goal_prediction`].
 
 pub mod acting;
 pub mod dense;
@@ -10,10 +11,10 @@ pub mod obs_norm;
 pub mod policy;
 pub mod popart;
 
-use tch::nn::{self, LayerNorm, Module};
+use tch::nn::{self, LayerNorm, Linear, Module};
 use tch::{Device, Tensor};
 
-use crate::config::{ModelConfig, PopArtConfig};
+use crate::config::{GOAL_DIM, GoalPrediction, ModelConfig, PopArtConfig};
 use dense::Dense;
 use gtrxl::Gtrxl;
 use instruction::InstructionPool;
@@ -36,6 +37,8 @@ pub struct Model {
     policy: PolicyHead,
     value_hidden: Dense,
     popart: PopArt,
+    /// Core output → the task's goal (None = the paper; `model.goal_prediction`).
+    goal: Option<Linear>,
     device: Device,
 }
 
@@ -97,6 +100,8 @@ impl Model {
                 cfg.num_tasks as i64,
                 popart.clone(),
             ),
+            goal: (cfg.goal_prediction != GoalPrediction::Off)
+                .then(|| nn::linear(p / "goal", d, GOAL_DIM as i64, Default::default())),
             cfg: cfg.clone(),
             device: p.device(),
         }
@@ -154,6 +159,22 @@ impl Model {
 
     pub fn value_features(&self, core: &Tensor) -> Tensor {
         self.value_hidden.forward(core).relu()
+    }
+
+    /// The goal head's prediction `[..., 3]` from core outputs `[..., d]`, its gradient
+    /// stopped at the core for `goal_prediction = "probe"`; None without a goal head.
+    pub fn goal(&self, core: &Tensor) -> Option<Tensor> {
+        let head = self.goal.as_ref()?;
+        Some(match self.cfg.goal_prediction {
+            GoalPrediction::Probe => head.forward(&core.detach()),
+            _ => head.forward(core),
+        })
+    }
+
+    /// The goal each token carries for the goal head to predict, `[..., 3]`.
+    pub fn goal_target(&self, obs: &Tensor) -> Option<Tensor> {
+        let (offset, width) = self.cfg.goal_span()?;
+        Some(obs.narrow(-1, offset as i64, width as i64))
     }
 
     /// Unnormalised value `[...]` from value features `[..., H]` and task ids `[...]`.

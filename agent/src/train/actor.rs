@@ -95,9 +95,13 @@ impl GroupActor {
         &mut self,
         model: &Model,
         obs: &million_env::Fields,
+        info: &million_env::InfoBatch,
     ) -> anyhow::Result<()> {
         let starts = vec![true; self.rows];
-        self.inputs = Some(self.tokens.step_inputs(model.config(), obs, &starts)?);
+        self.inputs = Some(
+            self.tokens
+                .step_inputs(model.config(), obs, Some(info), &starts)?,
+        );
         self.episode_start = Tensor::from_slice(&starts);
         Ok(())
     }
@@ -148,7 +152,9 @@ impl GroupActor {
             .take()
             .ok_or_else(|| anyhow::anyhow!("group {} got a step it did not send", self.group))?;
         let ended = step.ended();
-        let next_inputs = self.tokens.step_inputs(model.config(), &step.obs, &ended)?;
+        let next_inputs =
+            self.tokens
+                .step_inputs(model.config(), &step.obs, Some(&step.info), &ended)?;
         let next_start = Tensor::from_slice(&ended);
         let mut batch = None;
         if record {

@@ -160,7 +160,7 @@ impl Evaluator {
             .collect();
         let mut tally = EvalTally::new(&tasks, &env_id, &self.first_trial_within);
         let mut actor = GroupActor::new(model, pool, 0);
-        actor.observe_reset(model, &reset.obs)?;
+        actor.observe_reset(model, &reset.obs, &reset.info)?;
         while !tally.finished() {
             actor.act_and_send(model, pool, &self.bounds, true)?;
             let step = pool.recv(0).await?;

@@ -469,7 +469,7 @@ impl<'a> ActorLoop<'a> {
             .map(|g| GroupActor::new(&self.model, &self.pool, g))
             .collect();
         for reset in self.pool.reset_all().await? {
-            groups[reset.group].observe_reset(&self.model, &reset.obs)?;
+            groups[reset.group].observe_reset(&self.model, &reset.obs, &reset.info)?;
         }
         for g in groups.iter_mut() {
             g.act_and_send(&self.model, &mut self.pool, &bounds, false)?;

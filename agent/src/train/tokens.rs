@@ -1,11 +1,12 @@
 //! Observation batches from the env pool → the model's inputs: the token `[B, obs]` (the
 //! configured fields concatenated in order, then the instruction slots when
-//! `model.instruction_words` > 0), the task ids `[B]` and the instruction flags `[B]`.
+//! `model.instruction_words` > 0, then the env's `goal` info when `model.goal_prediction` is
+//! on), the task ids `[B]` and the instruction flags `[B]`.
 
-use million_env::Fields;
+use million_env::{Fields, InfoBatch};
 use tch::Tensor;
 
-use crate::config::ModelConfig;
+use crate::config::{GOAL_INFO, ModelConfig};
 use crate::train::instruction_slots::InstructionSlots;
 
 #[derive(Debug, thiserror::Error)]
@@ -24,6 +25,11 @@ pub enum TokenError {
     Decode { key: String, message: String },
     #[error("task id {id} is outside model.num_tasks = {num_tasks}")]
     TaskId { id: i64, num_tasks: usize },
+    #[error(
+        "model.goal_prediction needs the env's `{GOAL_INFO}` info ({width} values per env) on \
+         every step: {message}"
+    )]
+    Goal { width: usize, message: String },
 }
 
 /// Model inputs of one step of a group.
@@ -92,13 +98,24 @@ impl TokenBuilder {
     }
 
     /// The inputs of one step; `episode_start[r]` marks row r's first step of an episode.
+    /// `info` is the step's info, read only for `model.goal_prediction`'s goal.
     pub fn step_inputs(
         &mut self,
         cfg: &ModelConfig,
         fields: &Fields,
+        info: Option<&InfoBatch>,
         episode_start: &[bool],
     ) -> Result<StepInputs, TokenError> {
         let (mut token, task, instruction) = fields_token(cfg, fields)?;
+        if let Some((offset, width)) = cfg.goal_span() {
+            let goals = goal_rows(info, fields.rows(), width)?;
+            for (row, goal) in token
+                .chunks_exact_mut(cfg.obs_dim())
+                .zip(goals.chunks_exact(width))
+            {
+                row[offset..offset + width].copy_from_slice(goal);
+            }
+        }
         if let Some((slots, (offset, width))) = &mut self.slots {
             // The word is in the token already: read it back rather than decode the field a
             // second time.
@@ -109,8 +126,9 @@ impl TokenBuilder {
                 .copied()
                 .collect();
             slots.observe(&words, &instruction, episode_start);
+            let len = cfg.instruction_dim();
             for (r, row) in token.chunks_exact_mut(dim).enumerate() {
-                row[from..].copy_from_slice(slots.row(r));
+                row[from..from + len].copy_from_slice(slots.row(r));
             }
         }
         let rows = fields.rows() as i64;
@@ -123,6 +141,28 @@ impl TokenBuilder {
 }
 
 type RowsToken = (Vec<f32>, Vec<i64>, Vec<bool>);
+
+/// The env's goal of every row, `rows × width` values, from a step's info.
+fn goal_rows(info: Option<&InfoBatch>, rows: usize, width: usize) -> Result<Vec<f32>, TokenError> {
+    let err = |message: String| TokenError::Goal { width, message };
+    let field = info
+        .and_then(|i| i.get(GOAL_INFO))
+        .ok_or_else(|| err("the env sends none".into()))?;
+    if let Some(r) = field.present.iter().position(|p| !p) {
+        return Err(err(format!("row {r} lacks it")));
+    }
+    let values: Vec<f32> = field
+        .value
+        .to_f64_vec()
+        .map_err(err)?
+        .into_iter()
+        .map(|v| v as f32)
+        .collect();
+    if values.len() != rows * width {
+        return Err(err(format!("{} values for {rows} rows", values.len())));
+    }
+    Ok(values)
+}
 
 /// Writes a one-integer-per-row field as one-hot vectors of `f.size` entries at `offset` of
 /// each token row (`model.observation`'s `one_hot`).
@@ -230,7 +270,7 @@ mod tests {
     #[test]
     fn tokens_follow_the_configured_order_and_convert_dtypes() {
         let s = TokenBuilder::new(&cfg(), 2)
-            .step_inputs(&cfg(), &fields(&[2, 0]), &[true, true])
+            .step_inputs(&cfg(), &fields(&[2, 0]), None, &[true, true])
             .unwrap();
         let token = Vec::<f32>::try_from(s.token.flatten(0, -1)).unwrap();
         assert_eq!(token, vec![1.0, 2.0, 1.0, 3.0, 4.0, 0.0]);
@@ -249,7 +289,7 @@ mod tests {
             ..ObsField::new("task_id", 3)
         });
         let step = |c: &ModelConfig, task: &[i64]| {
-            TokenBuilder::new(c, 2).step_inputs(c, &fields(task), &[true, true])
+            TokenBuilder::new(c, 2).step_inputs(c, &fields(task), None, &[true, true])
         };
         let token = Vec::<f32>::try_from(step(&c, &[2, 0]).unwrap().token.flatten(0, -1)).unwrap();
         #[rustfmt::skip]
@@ -269,7 +309,7 @@ mod tests {
     #[test]
     fn bad_task_ids_and_missing_fields_are_errors() {
         let step = |c: &ModelConfig, task: &[i64]| {
-            TokenBuilder::new(c, 2).step_inputs(c, &fields(task), &[true, true])
+            TokenBuilder::new(c, 2).step_inputs(c, &fields(task), None, &[true, true])
         };
         let err = step(&cfg(), &[3, 0]).unwrap_err();
         assert!(err.to_string().contains("task id 3"), "{err}");
@@ -286,7 +326,9 @@ mod tests {
             ..cfg()
         };
         let mut b = TokenBuilder::new(&c, 2);
-        let first = b.step_inputs(&c, &fields(&[0, 0]), &[true, true]).unwrap();
+        let first = b
+            .step_inputs(&c, &fields(&[0, 0]), None, &[true, true])
+            .unwrap();
         let token = Vec::<f32>::try_from(first.token.flatten(0, -1)).unwrap();
         // Row 0 is in an instruction phase: its word joins slot 0; row 1 is in a trial.
         #[rustfmt::skip]
@@ -294,5 +336,43 @@ mod tests {
             1.0, 2.0, 1.0, /* slots */ 1.0, 1.0, 2.0, 0.0, 0.0, 0.0,
             3.0, 4.0, 0.0, /* slots */ 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
         ]);
+    }
+
+    fn goal_info(values: &[f64], present: [bool; 2]) -> InfoBatch {
+        InfoBatch(vec![million_env::InfoField {
+            name: GOAL_INFO.into(),
+            value: EnvTensor::from_f64(vec![2, 3], values).unwrap(),
+            present: present.to_vec(),
+        }])
+    }
+
+    #[test]
+    fn the_goal_to_predict_follows_the_slots_and_is_required_when_asked() {
+        let c = ModelConfig {
+            instruction_words: 1,
+            goal_prediction: crate::config::GoalPrediction::Probe,
+            ..cfg()
+        };
+        let goals = [0.1, 0.6, 0.2, -0.1, 0.7, 0.05];
+        let info = goal_info(&goals, [true, true]);
+        let s = TokenBuilder::new(&c, 2)
+            .step_inputs(&c, &fields(&[0, 0]), Some(&info), &[true, true])
+            .unwrap();
+        let token = Vec::<f32>::try_from(s.token.flatten(0, -1)).unwrap();
+        #[rustfmt::skip]
+        assert_eq!(token, vec![
+            1.0, 2.0, 1.0, /* slot */ 1.0, 1.0, 2.0, /* goal */ 0.1, 0.6, 0.2,
+            3.0, 4.0, 0.0, /* slot */ 0.0, 0.0, 0.0, /* goal */ -0.1, 0.7, 0.05,
+        ]);
+        assert_eq!(c.goal_span(), Some((6, 3)));
+        let step = |info: Option<&InfoBatch>| {
+            TokenBuilder::new(&c, 2)
+                .step_inputs(&c, &fields(&[0, 0]), info, &[true, true])
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(step(None).contains("the env sends none"), "{}", step(None));
+        let missing = step(Some(&goal_info(&goals, [true, false])));
+        assert!(missing.contains("row 1 lacks it"), "{missing}");
     }
 }

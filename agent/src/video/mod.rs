@@ -279,7 +279,7 @@ pub async fn record_episode(
         last_phase = phase;
 
         // Act deterministically and step.
-        let inputs = tokens.step_inputs(model.config(), &obs, &[first_step])?;
+        let inputs = tokens.step_inputs(model.config(), &obs, Some(&info), &[first_step])?;
         let episode_start = Tensor::from_slice(&[first_step]);
         let out = model.act(&mut state, &inputs.token, &episode_start);
         let action = bounds.clip(&out.mean);

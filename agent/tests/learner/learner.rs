@@ -5,7 +5,7 @@ use std::collections::HashMap;
 use crate::common::small_agent;
 use million::algo::buffer::{BufferCounters, SegmentBatch};
 use million::checkpoint;
-use million::config::{AgentConfig, KlReference, MatmulDtype, MultiplierForm};
+use million::config::{AgentConfig, GoalPrediction, KlReference, MatmulDtype, MultiplierForm};
 use million::learner::Learner;
 use million::model::policy::sample_actions;
 use tch::{Device, Kind, Tensor};
@@ -528,4 +528,72 @@ fn normalised_observations_change_at_target_syncs_and_travel_to_actors() {
         mean_of(&actor_vs, "obs_norm.mean").equal(&mean),
         "the statistics travel"
     );
+}
+
+/// The bandit's batch with `goal` written where `model.goal_prediction` keeps the goal.
+fn with_goal(learner: &Learner, batch: SegmentBatch, goal: [f32; 3]) -> SegmentBatch {
+    if let Some((offset, width)) = learner.config().model.goal_span() {
+        batch
+            .obs
+            .narrow(2, offset as i64, width as i64)
+            .copy_(&Tensor::from_slice(&goal).view([1, 1, 3]));
+    }
+    batch
+}
+
+#[test]
+fn the_goal_probe_learns_without_training_the_network_and_the_auxiliary_head_trains_it() {
+    // The network's weights after 40 updates on one batch, and the goal error's first and
+    // last values, for a goal head of the given kind and loss weight.
+    let run = |mode: GoalPrediction, weight: f64| {
+        let mut cfg = small_agent(8, 8, 4);
+        cfg.optim.lr = 1e-2;
+        cfg.model.goal_prediction = mode;
+        cfg.model.goal_prediction_weight = weight;
+        let mut l = learner(cfg, 5);
+        let batch = bandit_batch(&l, 4);
+        let batch = with_goal(&l, batch, [0.1, 0.6, 0.2]);
+        let _ = batch.instruction.get(0).narrow(0, 0, 3).fill_(1);
+        let first = l.update(&batch).unwrap();
+        let mut last = first.clone();
+        for _ in 0..40 {
+            last = l.update(&batch).unwrap();
+        }
+        let network: Vec<(String, Tensor)> = l
+            .var_store()
+            .variables()
+            .into_iter()
+            .filter(|(name, _)| name.starts_with("core.") || name.starts_with("input_proj."))
+            .collect();
+        (network, first, last)
+    };
+    let same = |a: &[(String, Tensor)], b: &[(String, Tensor)]| {
+        a.iter().all(|(name, t)| {
+            let (_, u) = b.iter().find(|(n, _)| n == name).expect("same variables");
+            t.equal(u)
+        })
+    };
+    let (probe, first, last) = run(GoalPrediction::Probe, 1.0);
+    let (first_error, last_error) = (first.goal_error.unwrap(), last.goal_error.unwrap());
+    assert!(
+        last_error < 0.7 * first_error,
+        "{first_error} → {last_error}"
+    );
+    assert_eq!(
+        last.task_goal_error.keys().collect::<Vec<_>>(),
+        vec![&1],
+        "the bandit's steps are all task 1"
+    );
+    assert!((last.task_goal_error[&1] - last_error).abs() < 1e-6);
+    assert!(last.goal_loss.unwrap() > 0.0);
+    // The probe's loss, however heavy, leaves the network as it is without it.
+    let (heavy_probe, ..) = run(GoalPrediction::Probe, 1e4);
+    assert!(same(&probe, &heavy_probe));
+    // The auxiliary head's loss trains the network.
+    let (auxiliary, ..) = run(GoalPrediction::Auxiliary, 1.0);
+    let (heavy_auxiliary, ..) = run(GoalPrediction::Auxiliary, 1e4);
+    assert!(!same(&auxiliary, &heavy_auxiliary));
+    // Without a goal head, no goal metrics.
+    let (_, off, _) = run(GoalPrediction::Off, 1.0);
+    assert!(off.goal_error.is_none() && off.task_goal_error.is_empty());
 }

@@ -9,6 +9,7 @@ mod env_common;
 mod bench_smoke;
 mod env_access;
 mod eval_lost_server;
+mod goal_prediction;
 mod learning;
 mod local_servers;
 mod lockstep;
