@@ -108,7 +108,8 @@ pub struct ModelConfig {
     /// also trains the network, to make it read the goal in the words. The goal travels at
     /// the token's end, after the instruction slots, and the network never takes it as input.
     pub goal_prediction: GoalPrediction,
-    /// Weight of the goal head's loss, ½ mean squared error in metres over trial steps.
+    /// Weight of the goal head's loss: ½ the squared distance (m²) between the predicted and
+    /// the real goal, averaged over trial steps.
     pub goal_prediction_weight: f64,
 }
 
@@ -187,7 +188,7 @@ impl ModelConfig {
         None
     }
 
-    /// Length of the instruction slots at the token's end: K × (1 + word width).
+    /// Length of the instruction slots after the fields: K × (1 + word width).
     pub fn instruction_dim(&self) -> usize {
         self.instruction_words * (1 + self.word_dim())
     }

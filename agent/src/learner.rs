@@ -601,6 +601,7 @@ impl Learner {
             goal_error: l
                 .goal
                 .as_ref()
+                .filter(|_| policy_steps > 0.0)
                 .map(|(_, e)| masked_mean(e, &pw, policy_steps).sqrt()),
             task_goal_error: l.goal.as_ref().map_or_else(BTreeMap::new, |(_, e)| {
                 per_task(&task_mean(e).sqrt(), &l.task_policy_steps)

@@ -100,8 +100,16 @@ impl Model {
                 cfg.num_tasks as i64,
                 popart.clone(),
             ),
-            goal: (cfg.goal_prediction != GoalPrediction::Off)
-                .then(|| nn::linear(p / "goal", d, GOAL_DIM as i64, Default::default())),
+            // Zero-initialised: the head draws no random numbers, so a probe run acts and
+            // learns number for number as the same seed without it.
+            goal: (cfg.goal_prediction != GoalPrediction::Off).then(|| {
+                let zero = nn::LinearConfig {
+                    ws_init: nn::Init::Const(0.0),
+                    bs_init: Some(nn::Init::Const(0.0)),
+                    bias: true,
+                };
+                nn::linear(p / "goal", d, GOAL_DIM as i64, zero)
+            }),
             cfg: cfg.clone(),
             device: p.device(),
         }
@@ -131,7 +139,8 @@ impl Model {
         self.obs_norm.as_mut()
     }
 
-    /// The configured fields of tokens `[..., obs]`: everything but the instruction slots.
+    /// The configured fields of tokens `[..., obs]`: everything but the instruction slots and
+    /// the goal to predict.
     pub fn fields(&self, obs: &Tensor) -> Tensor {
         obs.narrow(-1, 0, self.cfg.fields_dim() as i64)
     }

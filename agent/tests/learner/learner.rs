@@ -593,7 +593,9 @@ fn the_goal_probe_learns_without_training_the_network_and_the_auxiliary_head_tra
     let (auxiliary, ..) = run(GoalPrediction::Auxiliary, 1.0);
     let (heavy_auxiliary, ..) = run(GoalPrediction::Auxiliary, 1e4);
     assert!(!same(&auxiliary, &heavy_auxiliary));
-    // Without a goal head, no goal metrics.
-    let (_, off, _) = run(GoalPrediction::Off, 1.0);
+    // Without a goal head, no goal metrics, and the same network as with the probe: the
+    // probe draws no random numbers and sends no gradient into it.
+    let (off_network, off, _) = run(GoalPrediction::Off, 1.0);
     assert!(off.goal_error.is_none() && off.task_goal_error.is_empty());
+    assert!(same(&probe, &off_network));
 }

@@ -26,7 +26,7 @@ fn quickstart(steps: u64) -> RunConfig {
 }
 
 /// A run's metrics without those that depend on the machine (rates, CPU and wall time).
-fn machine_free_metrics(dir: &Path) -> Vec<Vec<(String, String)>> {
+pub(crate) fn machine_free_metrics(dir: &Path) -> Vec<Vec<(String, String)>> {
     metrics_records(dir)
         .into_iter()
         .map(|r| {

@@ -26,7 +26,7 @@ use tch::{Device, Kind, Tensor};
 use million_env::find_in_repository;
 
 use crate::algo::buffer::SegmentBatch;
-use crate::config::AgentConfig;
+use crate::config::{AgentConfig, GoalPrediction};
 use crate::learner::Learner;
 use crate::run_config::RunConfig;
 
@@ -322,6 +322,13 @@ pub fn run(
         bail!(
             "{}: the PyTorch reference implements the paper's network, without the \
              instruction slots; set model.instruction_words = 0 to compare",
+            config.display()
+        );
+    }
+    if agent.model.goal_prediction != GoalPrediction::Off {
+        bail!(
+            "{}: the PyTorch reference implements the paper's network, without the goal \
+             head; set model.goal_prediction = \"off\" to compare",
             config.display()
         );
     }
