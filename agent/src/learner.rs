@@ -507,8 +507,8 @@ impl Learner {
             &policy_mask,
         );
 
-        // 7. The goal head (`model.goal_prediction`): ½ mean squared error in metres over the
-        //    trial steps, where the goal is the env's and the words may have told it.
+        // 7. The goal head (`model.goal_prediction`): ½ the squared distance (m²) to the env's
+        //    goal, averaged over the trial steps, where the words may have told it.
         let goal = self
             .model
             .goal(&out.core.output.narrow(1, 0, t_len))
