@@ -2,8 +2,10 @@
 where the result's page can point to it.
 
 For each RUN_DIR, writes OUT/<run folder name>/metrics.jsonl with the run's evaluation records
-(`eval/...`) and its stochastic training success (`train/success`), each record keeping its
-`step` and `wall_time`, and copies the run's config.toml (what was run). tools/seed_summary.py,
+(`eval/...`), its stochastic training success (`train/success`) and, for a run with a goal head
+(`model.goal_prediction`), its goal errors (`learner/goal_error`, `learner/task_goal_error/...`,
+read by tools/goal_error.py), each record keeping its `step` and `wall_time`, and copies the
+run's config.toml (what was run). tools/seed_summary.py,
 tools/plot_curves.py and `million report` (which draws the original's logged points for ML10
 and ML45 runs from the config's env id) read the copy as they read the run. A few tens of kB
 per run, where the whole metrics file is a few MB.
@@ -31,8 +33,8 @@ from pathlib import Path
 # The same reader as the statistic's: a line cut short is skipped with a warning.
 from seed_summary import records
 
-KEPT_PREFIXES = ("eval/",)
-KEPT_KEYS = ("step", "wall_time", "train/success")
+KEPT_PREFIXES = ("eval/", "learner/task_goal_error/")
+KEPT_KEYS = ("step", "wall_time", "train/success", "learner/goal_error")
 
 
 def kept(record: dict[str, object]) -> dict[str, object] | None:
