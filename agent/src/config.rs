@@ -97,6 +97,11 @@ pub struct ModelConfig {
     /// every trial step has a gradient path to the goal word (not in the paper; see
     /// `model::instruction` and docs/experiments/2026-12-02-instruction-slots.md).
     pub instruction_words: usize,
+    /// Learned queries of the instruction slots' pooling (with `instruction_words` > 0; not in
+    /// the paper). Each query pools the slots by its own attention and the pooled values are
+    /// concatenated before the output layer, so one query can keep to the verb that names the
+    /// task while another keeps to `goal_pos`; 1 = a single bag-of-words average.
+    pub instruction_queries: usize,
     /// Precision of the linear layers' matrix products: "float32" (the paper) or
     /// "bfloat16" (weights, gradients and optimiser state stay float32; no faster over a
     /// whole update on the 2-core machine, and no learning run has used it). See `model::dense`.
@@ -136,6 +141,7 @@ impl Default for ModelConfig {
             min_std: 1e-4,
             obs_norm: vec![],
             instruction_words: 0,
+            instruction_queries: 1,
             matmul_dtype: MatmulDtype::Float32,
             goal_prediction: GoalPrediction::Off,
             goal_prediction_weight: 1.0,
@@ -548,6 +554,9 @@ impl AgentConfig {
                 m.instruction_words
             ));
         }
+        if m.instruction_queries == 0 {
+            return bad("model.instruction_queries must be at least 1".into());
+        }
         if !(m.goal_prediction_weight.is_finite() && m.goal_prediction_weight >= 0.0) {
             return bad("model.goal_prediction_weight must be finite and >= 0".into());
         }
@@ -658,5 +667,10 @@ mod tests {
         )
         .unwrap_err();
         assert!(err.to_string().contains("needs a `word` field"), "{err}");
+        let err = AgentConfig::from_toml_str(
+            "[model]\ninstruction_words = 12\ninstruction_queries = 0\n",
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("instruction_queries"), "{err}");
     }
 }

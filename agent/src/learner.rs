@@ -422,7 +422,9 @@ impl Learner {
         );
         let g = flat(&returns.returns);
         let value_mask = flat(&returns.trainable);
-        let policy_mask = value_mask.logical_and(&flat(&b.instruction).logical_not());
+        // Trial steps: the policy learns on them, and the goal head (7.) is scored on them.
+        let trial = flat(&b.instruction).logical_not();
+        let policy_mask = value_mask.logical_and(&trial);
 
         // 3. Pop-Art: move the task statistics (undone below if the loss is not finite), then
         //    normalised targets Ĝ and advantages Â = clip(Ĝ − sg(ñ)).
@@ -518,7 +520,7 @@ impl Learner {
                     .square()
                     .sum_dim_intlist(-1, false, Kind::Float)
                     .reshape([n]);
-                let trial_w = flat(&b.instruction).logical_not().to_kind(Kind::Float);
+                let trial_w = trial.to_kind(Kind::Float);
                 let goal_loss = (&sq_error * &trial_w).sum(Kind::Float)
                     / trial_w.sum(Kind::Float).clamp_min(1.0)
                     * (0.5 * cfg.model.goal_prediction_weight);

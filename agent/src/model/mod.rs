@@ -74,6 +74,7 @@ impl Model {
                 InstructionPool::new(
                     &(p / "instruction"),
                     cfg.instruction_words,
+                    cfg.instruction_queries,
                     cfg.word_dim(),
                     cfg.d_model,
                 )

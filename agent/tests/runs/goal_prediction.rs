@@ -41,7 +41,8 @@ fn a_run_with_the_goal_probe_logs_how_far_its_goal_is_and_acts_as_without_it() {
     let summary = quickstart(GoalPrediction::Probe, dir.path());
     assert!(summary.updates > 0);
     assert!(!summary.final_eval.is_empty(), "the final evaluation ran");
-    let errors: Vec<f64> = metrics_records(dir.path())
+    let records = metrics_records(dir.path());
+    let errors: Vec<f64> = records
         .iter()
         .filter_map(|r| r.get("learner/goal_error")?.as_f64())
         .collect();
@@ -52,7 +53,7 @@ fn a_run_with_the_goal_probe_logs_how_far_its_goal_is_and_acts_as_without_it() {
         errors.iter().all(|e| e.is_finite() && *e > 0.0 && *e < 2.0),
         "{errors:?}"
     );
-    let per_task = metrics_records(dir.path())
+    let per_task = records
         .iter()
         .any(|r| r.keys().any(|k| k.starts_with("learner/task_goal_error/")));
     assert!(per_task, "no per-task goal error was logged");
